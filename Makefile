@@ -1,0 +1,31 @@
+# Two commands do all the set-up on a fresh machine:
+#   make demo   # the MCMC-MPC flying the paper's 4-aircraft encounter (for now: the NF alone)
+#   make test   # the test suite
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+
+.PHONY: demo test bench figures clean
+
+$(BIN)/atc-nf: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e ".[test]"
+	touch $@
+
+demo: $(BIN)/atc-nf
+	$(BIN)/atc-nf fly --policy nf --scenario converging-4 --wind-sigma 0 --seed 0 \
+		--summary-json out/summary.json --plots out/figs
+
+test: $(BIN)/atc-nf
+	$(BIN)/python -m pytest -q
+
+bench: $(BIN)/atc-nf
+	$(BIN)/python bench/bench_kernel.py
+	$(BIN)/python bench/integration_step_study.py
+
+figures: $(BIN)/atc-nf
+	$(BIN)/python -m atc_nf_env.experiments.nf_alone --out out/nf_alone
+
+clean:
+	rm -rf $(VENV) out

@@ -1,0 +1,1 @@
+"""Stable-Baselines3 agents trained on the atc-nf-env environments."""

@@ -1,0 +1,145 @@
+"""Gains and settings of the navigation-function controller and the integrator.
+
+The defaults are the calibrated ones: ``atc_nf_env.calibration`` derives k_u and k_z
+from the speed targets and checks the envelope over the workspace; the integration
+step comes from the convergence study in ``bench/integration_step_study.py``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+import numpy as np
+
+from atc_nf_env import nf
+from atc_nf_env.units import (
+    AIRCRAFT_RADIUS_NM,
+    AIRSPEED_MAX_KT,
+    AIRSPEED_MIN_KT,
+    SEPARATION_MIN_NM,
+)
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Settings of the NF control law (5a)-(5b) and of the integrator.
+
+    Attributes:
+        k: exponent of the NF (2); 2 makes the unobstructed gradient nearly constant
+            along the dipole axis, which is what lets a waypoint ~100 nm ahead hold a
+            steady airspeed.
+        eps_nh: ε_nh of (3), in units of L² (sets where the approach slows: ~√ε_nh·L).
+        length_scale_nm: L, the unit of length inside the NF, nm.
+        k_u: gain of ‖∇Φ‖² in F_i, kt.
+        k_z: gain of ‖q − q_d‖² (in units of L²) in F_i, kt.
+        k_theta: heading gain k_θ of (5b), 1/s.
+        sensing_radius_nm: centre-to-centre distance beyond which a neighbour does not
+            enter G_i, nm.
+        f_a0: f_i(0), in units of L².
+        f_cutoff: X, f_i vanishes for G_i ≥ X (dimensionless, G_i ∈ [0, 1]).
+        arrival_tolerance_nm: Δ, an aircraft within Δ of its destination has arrived, nm.
+        dt_s: integration step, s.
+        airspeed_min_kt, airspeed_max_kt: the airspeed envelope, kt.
+        separation_min_nm: the separation minimum, nm (a loss of separation below it).
+        aircraft_radius_nm: r_i, nm.
+        airspeed_cap_kt: saturation of the commanded airspeed, kt. A guard: the 1/P_i
+            term of (5a) is unbounded as P_i → 0; the cap keeps positions finite and,
+            being far outside the envelope, changes no feasibility verdict.
+        p_floor: floor on |P_i| (units of 1/L) in the 1/P_i term of (5a) (guard).
+        grad_floor: below this ‖∇Φ_i‖ (units of 1/L) θ_nh is taken as θ_d (guard; the
+            paper's rule at q_i = q_d, extended to where the gradient has no direction).
+    """
+
+    k: float = 2.0
+    eps_nh: float = 0.1
+    length_scale_nm: float = 100.0
+    k_u: float = 88320.26624908243  # = calibration.calibrate().k_u (checked by a test)
+    k_z: float = 30.0
+    k_theta: float = 1.0 / 30.0
+    sensing_radius_nm: float = 40.0
+    barrier_nm: float = 10.0
+    f_a0: float = 0.01
+    f_cutoff: float = 0.5
+    arrival_tolerance_nm: float = 2.0
+    dt_s: float = 5.0
+    airspeed_min_kt: float = AIRSPEED_MIN_KT
+    airspeed_max_kt: float = AIRSPEED_MAX_KT
+    separation_min_nm: float = SEPARATION_MIN_NM
+    aircraft_radius_nm: float = AIRCRAFT_RADIUS_NM
+    airspeed_cap_kt: float = 1500.0
+    p_floor: float = 1e-9
+    grad_floor: float = 1e-12
+    dphi_dt_gain: float = 1.0
+
+    def __post_init__(self) -> None:
+        for field in fields(self):
+            value = getattr(self, field.name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"SimConfig.{field.name} = {value!r}: must be a finite number")
+        positive = (
+            "k", "eps_nh", "length_scale_nm", "k_theta", "sensing_radius_nm", "barrier_nm", "f_cutoff",
+            "arrival_tolerance_nm", "dt_s", "aircraft_radius_nm", "airspeed_cap_kt",
+            "p_floor", "grad_floor", "separation_min_nm",
+        )
+        for name in positive:
+            if getattr(self, name) <= 0:
+                raise ValueError(f"SimConfig.{name} = {getattr(self, name)!r}: must be > 0")
+        for name in ("k_u", "k_z", "f_a0"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"SimConfig.{name} = {getattr(self, name)!r}: must be >= 0")
+        if self.sensing_radius_nm <= 2 * self.aircraft_radius_nm:
+            raise ValueError(
+                f"SimConfig.sensing_radius_nm = {self.sensing_radius_nm!r}: must exceed the "
+                f"contact distance 2 * aircraft_radius_nm = {2 * self.aircraft_radius_nm}"
+            )
+        if not 2 * self.aircraft_radius_nm < self.barrier_nm < self.sensing_radius_nm:
+            raise ValueError(
+                f"SimConfig.barrier_nm = {self.barrier_nm!r}: must lie between the contact distance "
+                f"{2 * self.aircraft_radius_nm} nm and sensing_radius_nm = {self.sensing_radius_nm}"
+            )
+        if not 0 < self.airspeed_min_kt < self.airspeed_max_kt < self.airspeed_cap_kt:
+            raise ValueError(
+                "SimConfig: need 0 < airspeed_min_kt < airspeed_max_kt < airspeed_cap_kt, got "
+                f"{self.airspeed_min_kt}, {self.airspeed_max_kt}, {self.airspeed_cap_kt}"
+            )
+
+    def replace(self, **changes: Any) -> "SimConfig":
+        """A copy with some fields changed (validated)."""
+        unknown = set(changes) - {f.name for f in fields(self)}
+        if unknown:
+            raise ValueError(
+                f"SimConfig has no field {sorted(unknown)}; fields: {[f.name for f in fields(self)]}"
+            )
+        return replace(self, **changes)
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+    def to_params(self, workspace_radius_nm: float, stop_on_violation: bool = False) -> np.ndarray:
+        """The float64 parameter vector read by the compiled NF and kernel."""
+        params = np.zeros(nf.N_PARAMS)
+        params[nf.P_K] = self.k
+        params[nf.P_EPS_NH] = self.eps_nh
+        params[nf.P_LENGTH] = self.length_scale_nm
+        params[nf.P_K_U] = self.k_u
+        params[nf.P_K_Z] = self.k_z
+        params[nf.P_K_THETA] = self.k_theta
+        params[nf.P_R_WORLD] = workspace_radius_nm
+        params[nf.P_RADIUS] = self.aircraft_radius_nm
+        params[nf.P_R_SENSE] = self.sensing_radius_nm
+        params[nf.P_BARRIER] = self.barrier_nm
+        params[nf.P_A0] = self.f_a0
+        params[nf.P_X] = self.f_cutoff
+        params[nf.P_DELTA] = self.arrival_tolerance_nm
+        params[nf.P_DT] = self.dt_s
+        params[nf.P_U_MIN] = self.airspeed_min_kt
+        params[nf.P_U_MAX] = self.airspeed_max_kt
+        params[nf.P_SEP_MIN] = self.separation_min_nm
+        params[nf.P_U_CAP] = self.airspeed_cap_kt
+        params[nf.P_STOP_ON_VIOLATION] = 1.0 if stop_on_violation else 0.0
+        params[nf.P_P_FLOOR] = self.p_floor
+        params[nf.P_GRAD_FLOOR] = self.grad_floor
+        params[nf.P_DPHI_DT_GAIN] = self.dphi_dt_gain
+        return params

@@ -1,0 +1,97 @@
+"""Fly one episode of a scenario with a policy: a decision every period, the NF between."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from atc_nf_env.config import SimConfig
+from atc_nf_env.metrics import RunMetrics, run_metrics
+from atc_nf_env.policy import Policy
+from atc_nf_env.scenarios import Scenario
+from atc_nf_env.simulation import Simulation, sample_wind_kt
+from atc_nf_env.units import DECISION_PERIOD_S, WIND_SIGMA_MPS
+
+#: Default time limit of an episode, s: room for the 6-aircraft NF roundabout.
+MAX_EPISODE_S: float = 4 * 3600.0
+
+
+@dataclass
+class EpisodeResult:
+    """A finished episode: its metrics and, when recorded, its trajectory.
+
+    ``times_s`` (R,) and ``records`` (R, N, N_RECORD) hold the state every
+    ``record_every`` integration steps (fields ``atc_nf_env.kernel.R_*``).
+    """
+
+    metrics: RunMetrics
+    times_s: np.ndarray
+    records: np.ndarray
+    waypoints: np.ndarray  # (decisions, N, 2) nm
+    decision_times_s: np.ndarray
+
+
+def episode_wind_kt(seed: int | None, wind_sigma_mps: float) -> np.ndarray:
+    """The hidden wind of the episode with this seed (kt): a stream of its own, so that
+    a policy's randomness never changes the wind of a seed."""
+    rng = np.random.default_rng([0 if seed is None else seed, 0x57494E44])
+    return sample_wind_kt(rng, wind_sigma_mps)
+
+
+def run_episode(
+    policy: Policy,
+    scenario: Scenario,
+    *,
+    seed: int | None = 0,
+    wind_sigma_mps: float = WIND_SIGMA_MPS,
+    wind_kt: np.ndarray | None = None,
+    config: SimConfig | None = None,
+    period_s: float = DECISION_PERIOD_S,
+    max_time_s: float = MAX_EPISODE_S,
+    record_every: int = 0,
+) -> EpisodeResult:
+    """Fly ``scenario`` with ``policy`` until every aircraft has arrived or left, or
+    ``max_time_s`` has passed.
+
+    Args:
+        policy: any object of the ``Policy`` interface.
+        scenario: the encounter.
+        seed: seeds the wind (unless ``wind_kt`` is given) and the policy.
+        wind_sigma_mps: standard deviation of each wind component, m/s.
+        wind_kt: a fixed wind (east, north) in kt instead of a sampled one.
+        config: NF gains and integrator settings.
+        period_s: decision period T, s (a whole number of integration steps).
+        max_time_s: time limit, s.
+        record_every: keep the state every this many integration steps (0: none).
+    """
+    if not (np.isfinite(period_s) and period_s > 0):
+        raise ValueError(f"period_s = {period_s!r}: must be a finite number > 0")
+    if not (np.isfinite(max_time_s) and max_time_s > 0):
+        raise ValueError(f"max_time_s = {max_time_s!r}: must be a finite number > 0")
+    config = config or SimConfig()
+    wind = episode_wind_kt(seed, wind_sigma_mps) if wind_kt is None else np.asarray(wind_kt, float)
+    sim = Simulation(scenario, config=config, wind_kt=wind, record_every=record_every)
+    policy.reset(scenario, config, seed)
+    decision_s: list[float] = []
+    waypoints: list[np.ndarray] = []
+    decision_times: list[float] = []
+    start = time.perf_counter()
+    while not sim.done and sim.time_s < max_time_s - 1e-9:
+        t0 = time.perf_counter()
+        action = np.asarray(policy.act(sim.view()), dtype=np.float64)
+        decision_s.append(time.perf_counter() - t0)
+        waypoints.append(action.copy())
+        decision_times.append(sim.time_s)
+        sim.advance(action, min(period_s, max_time_s - sim.time_s))
+    wall = time.perf_counter() - start
+    times, records = sim.recording()
+    metrics = run_metrics(sim, seed=seed, wall_s=wall, decision_s=decision_s)
+    return EpisodeResult(
+        metrics=metrics,
+        times_s=times,
+        records=records,
+        waypoints=np.array(waypoints),
+        decision_times_s=np.array(decision_times),
+    )

@@ -1,0 +1,160 @@
+"""Metrics of one run and the summary of many (the ``--summary-json`` contract).
+
+Per aircraft: flight time (min), path length (nm), arrival. Per run: minimum
+separation (nm), loss-of-separation count (pairs of aircraft that came closer than
+5 nm), envelope violation as the fraction of integration steps flown with airspeed
+outside [366, 540] kt, and the worst excursion outside it (kt).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Iterable
+
+import numpy as np
+
+from atc_nf_env.kernel import ARRIVED, LEFT, NO_PAIR_SEPARATION_NM, S_PATH, S_STATUS, S_TIME
+from atc_nf_env.simulation import Simulation
+
+
+@dataclass
+class RunMetrics:
+    """Outcome of one episode. Times in minutes, distances in nm, speeds in kt."""
+
+    scenario: str
+    seed: int | None
+    n_aircraft: int
+    wind_kt: list[float]
+    arrived: list[bool]
+    left_workspace: list[bool]
+    flight_time_min: list[float]
+    path_length_nm: list[float]
+    success: bool
+    min_separation_nm: float | None
+    los_count: int
+    envelope_violation_fraction: float
+    worst_excursion_kt: float
+    airspeed_min_kt: float
+    airspeed_max_kt: float
+    steps_flown: int
+    sim_time_min: float
+    wall_s: float
+    decisions: int
+    decision_s_mean: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def run_metrics(
+    sim: Simulation,
+    *,
+    seed: int | None,
+    wall_s: float,
+    decision_s: Iterable[float],
+) -> RunMetrics:
+    """Metrics of a finished (or truncated) simulation."""
+    state = sim.state[0, : sim.n_aircraft]
+    stats = sim.stats
+    decision_list = list(decision_s)
+    arrived = state[:, S_STATUS] == ARRIVED
+    flown = int(stats.steps_flown.sum())
+    min_sep = stats.min_separation_nm
+    return RunMetrics(
+        scenario=sim.scenario.name,
+        seed=seed,
+        n_aircraft=sim.n_aircraft,
+        wind_kt=[float(w) for w in sim.wind_kt],
+        arrived=[bool(a) for a in arrived],
+        left_workspace=[bool(s == LEFT) for s in state[:, S_STATUS]],
+        flight_time_min=[float(t) / 60.0 for t in state[:, S_TIME]],
+        path_length_nm=[float(p) for p in state[:, S_PATH]],
+        success=bool(arrived.all()),
+        min_separation_nm=None if min_sep >= NO_PAIR_SEPARATION_NM else float(min_sep),
+        los_count=int(np.triu(stats.los_pairs, 1).sum()),
+        envelope_violation_fraction=float(stats.violation_steps.sum()) / flown if flown else 0.0,
+        worst_excursion_kt=float(stats.worst_excursion_kt.max(initial=0.0)),
+        airspeed_min_kt=float(stats.min_airspeed_kt.min()),
+        airspeed_max_kt=float(stats.max_airspeed_kt.max()),
+        steps_flown=flown,
+        sim_time_min=sim.time_s / 60.0,
+        wall_s=wall_s,
+        decisions=len(decision_list),
+        decision_s_mean=float(np.mean(decision_list)) if decision_list else 0.0,
+    )
+
+
+def _stats(values: list[float]) -> dict[str, float | None]:
+    if not values:
+        return {"min": None, "mean": None, "max": None}
+    return {"min": float(min(values)), "mean": float(np.mean(values)), "max": float(max(values))}
+
+
+def summarize(runs: list[RunMetrics], peak_rss_mb: float | None = None) -> dict[str, Any]:
+    """The summary of DESIGN.md's contract over runs.
+
+    ``flight_time_min`` is over arrived aircraft; ``envelope_violation_fraction`` pools
+    the integration steps of all runs.
+    """
+    if not runs:
+        raise ValueError("summarize needs at least one run")
+    separations = [r.min_separation_nm for r in runs if r.min_separation_nm is not None]
+    flight_times = [t for r in runs for t, a in zip(r.flight_time_min, r.arrived) if a]
+    steps = sum(r.steps_flown for r in runs)
+    violations = sum(r.envelope_violation_fraction * r.steps_flown for r in runs)
+    decision_times = [r.decision_s_mean for r in runs if r.decisions]
+    return {
+        "scenario": runs[0].scenario,
+        "runs": len(runs),
+        "success_rate": sum(r.success for r in runs) / len(runs),
+        "arrived_fraction": float(np.mean([a for r in runs for a in r.arrived])),
+        "los_count": int(sum(r.los_count for r in runs)),
+        "runs_with_los": int(sum(r.los_count > 0 for r in runs)),
+        "min_separation_nm": _stats(separations),
+        "airspeed_kt": {
+            "min": float(min(r.airspeed_min_kt for r in runs)),
+            "max": float(max(r.airspeed_max_kt for r in runs)),
+        },
+        "envelope_violation_fraction": violations / steps if steps else 0.0,
+        "worst_excursion_kt": float(max(r.worst_excursion_kt for r in runs)),
+        "flight_time_min": {
+            "mean": float(np.mean(flight_times)) if flight_times else None,
+            "max": float(max(flight_times)) if flight_times else None,
+        },
+        "wall_s_per_run": {"mean": float(np.mean([r.wall_s for r in runs]))},
+        "decision_s": {"mean": float(np.mean(decision_times)) if decision_times else 0.0},
+        "peak_rss_mb": peak_rss_mb,
+    }
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far, MB (Linux reports KiB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def format_run(metrics: RunMetrics) -> str:
+    """A short human-readable report of one run."""
+    lines = [
+        f"scenario {metrics.scenario}  seed {metrics.seed}  wind ({metrics.wind_kt[0]:+.1f}, "
+        f"{metrics.wind_kt[1]:+.1f}) kt",
+        f"  arrived {sum(metrics.arrived)}/{metrics.n_aircraft}"
+        + (f"  left workspace {sum(metrics.left_workspace)}" if any(metrics.left_workspace) else ""),
+        "  min separation "
+        + ("n/a" if metrics.min_separation_nm is None else f"{metrics.min_separation_nm:.2f} nm")
+        + f"  losses of separation {metrics.los_count}",
+        f"  airspeed {metrics.airspeed_min_kt:.0f}..{metrics.airspeed_max_kt:.0f} kt  "
+        f"outside [366, 540] kt on {100 * metrics.envelope_violation_fraction:.1f} % of steps "
+        f"(worst by {metrics.worst_excursion_kt:.0f} kt)",
+        "  flight time "
+        + ", ".join(f"{t:.1f}" if a else f"({t:.1f})" for t, a in zip(metrics.flight_time_min, metrics.arrived))
+        + " min  (in parentheses: not arrived)",
+        "  path length " + ", ".join(f"{p:.0f}" for p in metrics.path_length_nm) + " nm",
+        f"  simulated {metrics.sim_time_min:.1f} min in {metrics.wall_s:.2f} s wall, "
+        f"{metrics.decisions} decisions of {metrics.decision_s_mean * 1e3:.2f} ms",
+    ]
+    if not math.isfinite(metrics.airspeed_min_kt):
+        lines[3] = "  airspeed: no step flown"
+    return "\n".join(lines)

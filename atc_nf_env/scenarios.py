@@ -1,0 +1,313 @@
+"""Encounter scenarios: the paper's converging encounters, seeded random ones, and
+user-defined ones from a dict or a JSON file.
+
+Coordinates are nm in a frame centred on the workspace, x east and y north; headings
+are radians counter-clockwise from east (the x axis). In dicts and JSON files
+headings are given in degrees, with the same convention.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from atc_nf_env.units import AIRCRAFT_RADIUS_NM, AIRSPEED_NOMINAL_KT, SEPARATION_MIN_NM
+
+#: Radius of the paper's converging encounters, nm.
+ENCOUNTER_RADIUS_NM: float = 250.0
+
+#: Default radius of the workspace (the NF's boundary obstacle β0), nm. Much larger than
+#: the encounters: the unobstructed NF airspeed scales with 1/β0, and a workspace six
+#: times the encounter radius keeps it within a few percent across the flight region
+#: (see ``atc_nf_env.calibration``).
+WORKSPACE_RADIUS_NM: float = 1500.0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Initial conditions of an encounter.
+
+    Attributes:
+        name: a label.
+        start_xy: (n, 2) initial positions, nm.
+        start_heading: (n,) initial headings, rad.
+        dest_xy: (n, 2) destinations, nm.
+        dest_heading: (n,) desired arrival headings θ_d at the destinations, rad.
+        start_airspeed_kt: airspeed at t = 0, kt.
+        workspace_radius_nm: radius of the circular workspace, nm.
+    """
+
+    name: str
+    start_xy: np.ndarray
+    start_heading: np.ndarray
+    dest_xy: np.ndarray
+    dest_heading: np.ndarray
+    start_airspeed_kt: float = AIRSPEED_NOMINAL_KT
+    workspace_radius_nm: float = WORKSPACE_RADIUS_NM
+    metadata: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        for name in ("start_xy", "start_heading", "dest_xy", "dest_heading"):
+            object.__setattr__(self, name, np.array(getattr(self, name), dtype=np.float64))
+        validate_scenario(self)
+
+    @property
+    def n_aircraft(self) -> int:
+        return int(self.start_xy.shape[0])
+
+    def to_dict(self) -> dict[str, Any]:
+        """The scenario as a JSON-ready dict (headings in degrees), readable by ``scenario_from_dict``."""
+        return {
+            "name": self.name,
+            "workspace_radius_nm": self.workspace_radius_nm,
+            "start_airspeed_kt": self.start_airspeed_kt,
+            "aircraft": [
+                {
+                    "start": [float(x) for x in self.start_xy[i]],
+                    "heading_deg": math.degrees(float(self.start_heading[i])),
+                    "destination": [float(x) for x in self.dest_xy[i]],
+                    "arrival_heading_deg": math.degrees(float(self.dest_heading[i])),
+                }
+                for i in range(self.n_aircraft)
+            ],
+        }
+
+
+def validate_scenario(scenario: Scenario) -> None:
+    """Raise ValueError, naming the field, the value and what is allowed, if the scenario is impossible."""
+    n = scenario.start_xy.shape[0] if scenario.start_xy.ndim == 2 else -1
+    if scenario.start_xy.ndim != 2 or scenario.start_xy.shape[1:] != (2,):
+        raise ValueError(f"start_xy has shape {scenario.start_xy.shape}; expected (n, 2)")
+    if n < 1:
+        raise ValueError(f"number of aircraft n = {n}: must be >= 1")
+    expected = {"start_heading": (n,), "dest_xy": (n, 2), "dest_heading": (n,)}
+    for name, shape in expected.items():
+        if getattr(scenario, name).shape != shape:
+            raise ValueError(f"{name} has shape {getattr(scenario, name).shape}; expected {shape}")
+    for name in ("start_xy", "start_heading", "dest_xy", "dest_heading"):
+        if not np.isfinite(getattr(scenario, name)).all():
+            raise ValueError(f"{name} contains NaN or inf: {getattr(scenario, name).tolist()}")
+    radius = scenario.workspace_radius_nm
+    if not (math.isfinite(radius) and radius > 0):
+        raise ValueError(f"workspace_radius_nm = {radius!r}: must be a finite number > 0")
+    if not (math.isfinite(scenario.start_airspeed_kt) and scenario.start_airspeed_kt >= 0):
+        raise ValueError(
+            f"start_airspeed_kt = {scenario.start_airspeed_kt!r}: must be a finite number >= 0"
+        )
+    inner = radius - AIRCRAFT_RADIUS_NM
+    for name in ("start_xy", "dest_xy"):
+        dist = np.hypot(*getattr(scenario, name).T)
+        outside = np.flatnonzero(dist >= inner)
+        if outside.size:
+            i = int(outside[0])
+            raise ValueError(
+                f"{name}[{i}] = {getattr(scenario, name)[i].tolist()} lies {dist[i]:.1f} nm from the "
+                f"centre: must be within workspace_radius_nm - aircraft radius = {inner:.1f} nm"
+            )
+    if n > 1:
+        diff = scenario.start_xy[:, None, :] - scenario.start_xy[None, :, :]
+        sep = np.hypot(diff[..., 0], diff[..., 1]) + np.diag(np.full(n, np.inf))
+        i, j = np.unravel_index(int(np.argmin(sep)), sep.shape)
+        if sep[i, j] < SEPARATION_MIN_NM:
+            raise ValueError(
+                f"start_xy: aircraft {i} and {j} start {sep[i, j]:.2f} nm apart, in conflict; "
+                f"initial separations must be >= {SEPARATION_MIN_NM} nm"
+            )
+
+
+def converging(n: int, radius_nm: float = ENCOUNTER_RADIUS_NM, **kwargs: Any) -> Scenario:
+    """The paper's encounter: n aircraft evenly spaced on a circle, all heading for the
+    centre, each bound for the diametrically opposite point (section IV-A)."""
+    if not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"number of aircraft n = {n!r}: must be an integer >= 1")
+    if not (math.isfinite(radius_nm) and radius_nm > 0):
+        raise ValueError(f"radius_nm = {radius_nm!r}: must be a finite number > 0")
+    angles = 2.0 * np.pi * np.arange(n) / n
+    start = radius_nm * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    heading = np.mod(angles + np.pi + np.pi, 2 * np.pi) - np.pi
+    return Scenario(
+        name=f"converging-{n}",
+        start_xy=start,
+        start_heading=heading,
+        dest_xy=-start,
+        dest_heading=heading,
+        **kwargs,
+    )
+
+
+def random_encounter(
+    n: int,
+    seed: int,
+    radius_nm: float = ENCOUNTER_RADIUS_NM,
+    min_separation_nm: float = 20.0,
+    max_deviation_deg: float = 45.0,
+    **kwargs: Any,
+) -> Scenario:
+    """A seeded random crossing encounter.
+
+    Each aircraft starts on the circle of ``radius_nm`` at a uniformly random angle a,
+    heading for its destination on the same circle at angle a + π + δ, with δ uniform in
+    ±``max_deviation_deg``; starts and destinations are at least ``min_separation_nm``
+    apart. Raises ValueError if no such configuration is found (too many aircraft for
+    the separation asked).
+    """
+    if not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"number of aircraft n = {n!r}: must be an integer >= 1")
+    if not (math.isfinite(radius_nm) and radius_nm > 0):
+        raise ValueError(f"radius_nm = {radius_nm!r}: must be a finite number > 0")
+    if not (math.isfinite(min_separation_nm) and min_separation_nm >= SEPARATION_MIN_NM):
+        raise ValueError(
+            f"min_separation_nm = {min_separation_nm!r}: must be >= {SEPARATION_MIN_NM} nm"
+        )
+    rng = np.random.default_rng(seed)
+    # Points on a circle spaced by min_separation need n chords of that length.
+    max_n = int(2 * np.pi * radius_nm / min_separation_nm)
+    if n > max_n:
+        raise ValueError(
+            f"n = {n} aircraft cannot start {min_separation_nm} nm apart on a circle of "
+            f"{radius_nm} nm; at most {max_n}"
+        )
+
+    def spread(angles: np.ndarray) -> bool:
+        pts = radius_nm * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        diff = pts[:, None] - pts[None]
+        sep = np.hypot(diff[..., 0], diff[..., 1]) + np.diag(np.full(n, np.inf))
+        return bool(sep.min() >= min_separation_nm) if n > 1 else True
+
+    deviation = math.radians(max_deviation_deg)
+    for _ in range(10_000):
+        start_angles = rng.uniform(-np.pi, np.pi, n)
+        dest_angles = start_angles + np.pi + rng.uniform(-deviation, deviation, n)
+        if spread(start_angles) and spread(dest_angles):
+            break
+    else:
+        raise ValueError(
+            f"no random encounter of {n} aircraft with min_separation_nm = {min_separation_nm} "
+            "found in 10000 draws; ask for fewer aircraft or a smaller separation"
+        )
+    start = radius_nm * np.stack([np.cos(start_angles), np.sin(start_angles)], axis=1)
+    dest = radius_nm * np.stack([np.cos(dest_angles), np.sin(dest_angles)], axis=1)
+    heading = np.arctan2(dest[:, 1] - start[:, 1], dest[:, 0] - start[:, 0])
+    return Scenario(
+        name=f"random-{n}",
+        start_xy=start,
+        start_heading=heading,
+        dest_xy=dest,
+        dest_heading=heading,
+        metadata={"seed": seed},
+        **kwargs,
+    )
+
+
+_ALLOWED_KEYS = {"name", "aircraft", "workspace_radius_nm", "start_airspeed_kt"}
+_ALLOWED_AIRCRAFT_KEYS = {"start", "destination", "heading_deg", "arrival_heading_deg"}
+
+
+def scenario_from_dict(data: Mapping[str, Any]) -> Scenario:
+    """A scenario from a dict such as ``Scenario.to_dict()`` writes.
+
+    Keys: ``aircraft`` (a list of {"start": [x, y], "destination": [x, y], optional
+    "heading_deg", optional "arrival_heading_deg"}; headings default to the bearing
+    from start to destination), optional ``name``, ``workspace_radius_nm``,
+    ``start_airspeed_kt``.
+    """
+    if not isinstance(data, Mapping):
+        raise ValueError(f"a scenario must be a dict, got {type(data).__name__}")
+    unknown = set(data) - _ALLOWED_KEYS
+    if unknown:
+        raise ValueError(f"unknown scenario keys {sorted(unknown)}; allowed: {sorted(_ALLOWED_KEYS)}")
+    aircraft = data.get("aircraft")
+    if not isinstance(aircraft, list) or len(aircraft) < 1:
+        raise ValueError(
+            f"aircraft = {aircraft!r}: must be a non-empty list of "
+            '{"start": [x, y], "destination": [x, y]} (n >= 1)'
+        )
+    starts, dests, headings, arrivals = [], [], [], []
+    for index, entry in enumerate(aircraft):
+        if not isinstance(entry, Mapping):
+            raise ValueError(f"aircraft[{index}] = {entry!r}: must be a dict")
+        unknown = set(entry) - _ALLOWED_AIRCRAFT_KEYS
+        if unknown:
+            raise ValueError(
+                f"aircraft[{index}]: unknown keys {sorted(unknown)}; allowed: {sorted(_ALLOWED_AIRCRAFT_KEYS)}"
+            )
+        for key in ("start", "destination"):
+            value = entry.get(key)
+            if (
+                not isinstance(value, (list, tuple))
+                or len(value) != 2
+                or not all(isinstance(v, (int, float)) for v in value)
+            ):
+                raise ValueError(f"aircraft[{index}].{key} = {value!r}: must be [x, y] in nm")
+        start = np.array(entry["start"], dtype=float)
+        dest = np.array(entry["destination"], dtype=float)
+        bearing = math.atan2(dest[1] - start[1], dest[0] - start[0])
+        starts.append(start)
+        dests.append(dest)
+        headings.append(math.radians(entry["heading_deg"]) if "heading_deg" in entry else bearing)
+        arrivals.append(
+            math.radians(entry["arrival_heading_deg"]) if "arrival_heading_deg" in entry else bearing
+        )
+    kwargs: dict[str, Any] = {}
+    for key in ("workspace_radius_nm", "start_airspeed_kt"):
+        if key in data:
+            if not isinstance(data[key], (int, float)):
+                raise ValueError(f"{key} = {data[key]!r}: must be a number")
+            kwargs[key] = float(data[key])
+    return Scenario(
+        name=str(data.get("name", "custom")),
+        start_xy=np.array(starts),
+        start_heading=np.array(headings),
+        dest_xy=np.array(dests),
+        dest_heading=np.array(arrivals),
+        **kwargs,
+    )
+
+
+def scenario_from_json(path: str | Path) -> Scenario:
+    """A scenario from a JSON file holding ``scenario_from_dict``'s dict."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"scenario file {str(path)!r} does not exist") from None
+    except json.JSONDecodeError as error:
+        raise ValueError(f"scenario file {str(path)!r} is not valid JSON: {error}") from None
+    return scenario_from_dict(data)
+
+
+_NAME_PATTERN = re.compile(r"^(converging|random)-(\d+)$")
+
+
+def make_scenario(spec: str | Scenario | Mapping[str, Any], seed: int | None = None) -> Scenario:
+    """Resolve a scenario: a Scenario, a dict, a path to a ``.json`` file, or a name.
+
+    Names: ``converging-N`` (the paper's encounter with N aircraft; the paper uses 3, 4
+    and 6) and ``random-N`` (a random encounter of N aircraft drawn with ``seed``).
+    """
+    if isinstance(spec, Scenario):
+        return spec
+    if isinstance(spec, Mapping):
+        return scenario_from_dict(spec)
+    if not isinstance(spec, str):
+        raise ValueError(f"scenario = {spec!r}: must be a name, a .json path, a dict or a Scenario")
+    if spec.endswith(".json"):
+        return scenario_from_json(spec)
+    match = _NAME_PATTERN.match(spec)
+    if not match:
+        raise ValueError(
+            f"unknown scenario {spec!r}; allowed: 'converging-N' (e.g. converging-3, "
+            "converging-4, converging-6), 'random-N', or a path to a .json file"
+        )
+    kind, n = match.group(1), int(match.group(2))
+    if n < 1:
+        raise ValueError(f"scenario {spec!r}: the number of aircraft must be >= 1")
+    if kind == "converging":
+        return converging(n)
+    return random_encounter(n, seed=0 if seed is None else seed)
