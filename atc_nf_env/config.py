@@ -63,7 +63,7 @@ class SimConfig:
     f_a0: float = 0.01
     f_cutoff: float = 0.5
     arrival_tolerance_nm: float = 2.0
-    dt_s: float = 5.0
+    dt_s: float = 2.5
     airspeed_min_kt: float = AIRSPEED_MIN_KT
     airspeed_max_kt: float = AIRSPEED_MAX_KT
     separation_min_nm: float = SEPARATION_MIN_NM

@@ -36,7 +36,9 @@ class EpisodeResult:
 def episode_wind_kt(seed: int | None, wind_sigma_mps: float) -> np.ndarray:
     """The hidden wind of the episode with this seed (kt): a stream of its own, so that
     a policy's randomness never changes the wind of a seed."""
-    rng = np.random.default_rng([0 if seed is None else seed, 0x57494E44])
+    if seed is not None and (not isinstance(seed, (int, np.integer)) or seed < 0):
+        raise ValueError(f"seed = {seed!r}: must be an integer >= 0 (or None, which means 0)")
+    rng = np.random.default_rng([0 if seed is None else int(seed), 0x57494E44])
     return sample_wind_kt(rng, wind_sigma_mps)
 
 

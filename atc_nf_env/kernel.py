@@ -96,7 +96,9 @@ S_STATUS = 11  # FLYING, ARRIVED, LEFT or ABSENT
 S_TIME = 12  # time flown, s (frozen at arrival or departure)
 S_PATH = 13  # path length flown over the ground, nm
 S_FRESH = 14  # 1 while no step has been flown under the current waypoint
-N_STATE = 15
+S_COS_D = 15  # cos θ_d (cached: set with θ_d)
+S_SIN_D = 16  # sin θ_d
+N_STATE = 17
 
 # Scratch columns of the per-step commands.
 C_U_FEEDBACK = 0  # −sgn(P_i) F_i, kt
@@ -107,7 +109,8 @@ C_P = 4  # P_i, floored (guard 1)
 C_U = 5  # airspeed command of (5a), kt
 C_COS = 6  # cos θ_i
 C_SIN = 7  # sin θ_i
-N_COMMAND = 8
+C_NEAR = 8  # neighbours within the sensing radius
+N_COMMAND = 9
 
 # Record fields (optional per-step recording).
 R_X, R_Y, R_HEADING, R_AIRSPEED, R_FLEW = 0, 1, 2, 3, 4  # R_FLEW: 1 if it flew that step
@@ -120,13 +123,19 @@ _HALF_PI = 0.5 * math.pi
 _TWO_PI = 2.0 * math.pi
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, fastmath=True, error_model="numpy", inline="always")
 def _wrap(angle: float) -> float:
     """Angle wrapped to [−π, π)."""
+    # Differences of wrapped angles lie within ±2π: one conditional shift is enough
+    # there, and cheaper than the general floor that other angles fall back to.
+    if -math.pi <= angle < math.pi:
+        return angle
+    if -3.0 * math.pi <= angle < 3.0 * math.pi:
+        return angle - _TWO_PI if angle >= math.pi else angle + _TWO_PI
     return angle - _TWO_PI * math.floor((angle + math.pi) / _TWO_PI)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _assign_waypoints(state: np.ndarray, waypoints: np.ndarray) -> None:
     """Store new waypoints and set θ_d where a waypoint changed."""
     for i in range(state.shape[0]):
@@ -142,10 +151,12 @@ def _assign_waypoints(state: np.ndarray, waypoints: np.ndarray) -> None:
             state[i, S_THETA_D] = state[i, S_DEST_HEADING]
         else:
             state[i, S_THETA_D] = math.atan2(wy - state[i, S_Y], wx - state[i, S_X])
+        state[i, S_COS_D] = math.cos(state[i, S_THETA_D])
+        state[i, S_SIN_D] = math.sin(state[i, S_THETA_D])
         state[i, S_FRESH] = 1.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, fastmath=True, error_model="numpy", inline="always")
 def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py: float) -> float:
     """Distance from point p to the segment from (x0, y0) to (x1, y1)."""
     sx = x1 - x0
@@ -163,7 +174,7 @@ def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py:
     return math.sqrt(ex * ex + ey * ey)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _advance_world(
     state: np.ndarray,
     waypoints: np.ndarray,
@@ -213,7 +224,8 @@ def _advance_world(
         for j in range(n):
             los_pairs[i, j] = 0
 
-    min_sep = NO_PAIR_SEPARATION_NM
+    min_sep2 = NO_PAIR_SEPARATION_NM * NO_PAIR_SEPARATION_NM
+    sep_min2 = sep_min * sep_min
     violated = False
     n_record = record.shape[0]
     if n_record > 0:
@@ -236,7 +248,10 @@ def _advance_world(
             wx = state[i, S_WP_X]
             wy = state[i, S_WP_Y]
             theta_d = state[i, S_THETA_D]
-            nf.nf_value_and_gradients(i, pos, status, wx, wy, theta_d, params, grad[i])
+            cos_d = state[i, S_COS_D]
+            sin_d = state[i, S_SIN_D]
+            _, n_near = nf.nf_along_direction(i, pos, status, wx, wy, cos_d, sin_d, params, grad[i])
+            command[i, C_NEAR] = n_near
             gx = grad[i, i, 0]
             gy = grad[i, i, 1]
             heading = state[i, S_HEADING]
@@ -249,7 +264,7 @@ def _advance_world(
             f_speed = k_u * grad_norm2 + k_z * (dx * dx + dy * dy)
             sgn_p = 1.0 if p_dir >= 0.0 else -1.0
             if grad_norm2 > grad_floor * grad_floor:
-                along = math.cos(theta_d) * dx + math.sin(theta_d) * dy
+                along = cos_d * dx + sin_d * dy
                 sgn_along = 1.0 if along >= 0.0 else -1.0
                 theta_nh = math.atan2(sgn_along * gy, sgn_along * gx)
             else:
@@ -272,7 +287,7 @@ def _advance_world(
             if status[i] != FLYING:
                 continue
             dphi_dt = 0.0
-            for j in range(n):
+            for j in range(n if command[i, C_NEAR] > 0 else 0):
                 if j == i or status[j] != FLYING:
                     continue
                 along_j = grad[i, j, 0] * command[j, C_COS] + grad[i, j, 1] * command[j, C_SIN]
@@ -292,8 +307,8 @@ def _advance_world(
             heading = state[i, S_HEADING]
             x0 = state[i, S_X]
             y0 = state[i, S_Y]
-            vx = u * math.cos(heading) + wind_x
-            vy = u * math.sin(heading) + wind_y
+            vx = u * command[i, C_COS] + wind_x
+            vy = u * command[i, C_SIN] + wind_y
             x1 = x0 + vx * nm_per_kt_step
             y1 = y0 + vy * nm_per_kt_step
             state[i, S_X] = x1
@@ -303,7 +318,8 @@ def _advance_world(
             state[i, S_THETA_NH] = command[i, C_THETA_NH]
             state[i, S_FRESH] = 0.0
             state[i, S_TIME] += dt
-            state[i, S_PATH] += math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
+            step_nm = math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
+            state[i, S_PATH] += step_nm
             steps_flown[i] += 1
             if u < min_airspeed[i]:
                 min_airspeed[i] = u
@@ -317,7 +333,9 @@ def _advance_world(
                     worst_excursion[i] = excursion
             dest_x = state[i, S_DEST_X]
             dest_y = state[i, S_DEST_Y]
-            if _segment_distance(x0, y0, x1, y1, dest_x, dest_y) <= delta:
+            reach = delta + step_nm
+            near = (x1 - dest_x) ** 2 + (y1 - dest_y) ** 2 <= reach * reach
+            if near and _segment_distance(x0, y0, x1, y1, dest_x, dest_y) <= delta:
                 status[i] = ARRIVED
             elif x1 * x1 + y1 * y1 >= exit_radius * exit_radius:  # guard 7
                 status[i] = LEFT
@@ -332,10 +350,10 @@ def _advance_world(
                     continue
                 sx = state[i, S_X] - state[j, S_X]
                 sy = state[i, S_Y] - state[j, S_Y]
-                sep = math.sqrt(sx * sx + sy * sy)
-                if sep < min_sep:
-                    min_sep = sep
-                if sep < sep_min:
+                sep2 = sx * sx + sy * sy
+                if sep2 < min_sep2:
+                    min_sep2 = sep2
+                if sep2 < sep_min2:
                     los_pairs[i, j] = 1
                     los_pairs[j, i] = 1
                     step_violation = True
@@ -352,10 +370,10 @@ def _advance_world(
             violated = True
             if stop_on_violation:
                 break
-    return min_sep, step, violated
+    return math.sqrt(min_sep2), step, violated
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, fastmath=True, error_model="numpy", parallel=True)
 def _advance_batch(
     state: np.ndarray,
     waypoints: np.ndarray,

@@ -8,7 +8,6 @@ outside [366, 540] kt, and the worst excursion outside it (kt).
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from typing import Any, Iterable
 
@@ -35,8 +34,8 @@ class RunMetrics:
     los_count: int
     envelope_violation_fraction: float
     worst_excursion_kt: float
-    airspeed_min_kt: float
-    airspeed_max_kt: float
+    airspeed_min_kt: float | None  # None when no integration step was flown
+    airspeed_max_kt: float | None
     steps_flown: int
     sim_time_min: float
     wall_s: float
@@ -75,8 +74,8 @@ def run_metrics(
         los_count=int(np.triu(stats.los_pairs, 1).sum()),
         envelope_violation_fraction=float(stats.violation_steps.sum()) / flown if flown else 0.0,
         worst_excursion_kt=float(stats.worst_excursion_kt.max(initial=0.0)),
-        airspeed_min_kt=float(stats.min_airspeed_kt.min()),
-        airspeed_max_kt=float(stats.max_airspeed_kt.max()),
+        airspeed_min_kt=float(stats.min_airspeed_kt.min()) if flown else None,
+        airspeed_max_kt=float(stats.max_airspeed_kt.max()) if flown else None,
         steps_flown=flown,
         sim_time_min=sim.time_s / 60.0,
         wall_s=wall_s,
@@ -104,6 +103,8 @@ def summarize(runs: list[RunMetrics], peak_rss_mb: float | None = None) -> dict[
     steps = sum(r.steps_flown for r in runs)
     violations = sum(r.envelope_violation_fraction * r.steps_flown for r in runs)
     decision_times = [r.decision_s_mean for r in runs if r.decisions]
+    speeds_min = [r.airspeed_min_kt for r in runs if r.airspeed_min_kt is not None]
+    speeds_max = [r.airspeed_max_kt for r in runs if r.airspeed_max_kt is not None]
     return {
         "scenario": runs[0].scenario,
         "runs": len(runs),
@@ -113,8 +114,8 @@ def summarize(runs: list[RunMetrics], peak_rss_mb: float | None = None) -> dict[
         "runs_with_los": int(sum(r.los_count > 0 for r in runs)),
         "min_separation_nm": _stats(separations),
         "airspeed_kt": {
-            "min": float(min(r.airspeed_min_kt for r in runs)),
-            "max": float(max(r.airspeed_max_kt for r in runs)),
+            "min": min(speeds_min) if speeds_min else None,
+            "max": max(speeds_max) if speeds_max else None,
         },
         "envelope_violation_fraction": violations / steps if steps else 0.0,
         "worst_excursion_kt": float(max(r.worst_excursion_kt for r in runs)),
@@ -145,7 +146,9 @@ def format_run(metrics: RunMetrics) -> str:
         "  min separation "
         + ("n/a" if metrics.min_separation_nm is None else f"{metrics.min_separation_nm:.2f} nm")
         + f"  losses of separation {metrics.los_count}",
-        f"  airspeed {metrics.airspeed_min_kt:.0f}..{metrics.airspeed_max_kt:.0f} kt  "
+        "  airspeed: no step flown"
+        if metrics.airspeed_min_kt is None or metrics.airspeed_max_kt is None
+        else f"  airspeed {metrics.airspeed_min_kt:.0f}..{metrics.airspeed_max_kt:.0f} kt  "
         f"outside [366, 540] kt on {100 * metrics.envelope_violation_fraction:.1f} % of steps "
         f"(worst by {metrics.worst_excursion_kt:.0f} kt)",
         "  flight time "
@@ -155,6 +158,4 @@ def format_run(metrics: RunMetrics) -> str:
         f"  simulated {metrics.sim_time_min:.1f} min in {metrics.wall_s:.2f} s wall, "
         f"{metrics.decisions} decisions of {metrics.decision_s_mean * 1e3:.2f} ms",
     ]
-    if not math.isfinite(metrics.airspeed_min_kt):
-        lines[3] = "  airspeed: no step flown"
     return "\n".join(lines)

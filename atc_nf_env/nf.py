@@ -65,7 +65,7 @@ LEFT = 2.0
 ABSENT = 3.0  # padding slot of a world with fewer aircraft than the batch's N
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, fastmath=True, error_model="numpy", inline="always")
 def proximity_bump(s: float, c: float) -> tuple[float, float]:
     """h(s) and h'(s) of the decentralized proximity function.
 
@@ -86,7 +86,7 @@ def proximity_bump(s: float, c: float) -> tuple[float, float]:
     return w * (2.0 - w), 2.0 * (1.0 - w) * dw
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def nf_value_and_gradients(
     i: int,
     pos: np.ndarray,
@@ -97,6 +97,25 @@ def nf_value_and_gradients(
     params: np.ndarray,
     grad_out: np.ndarray,
 ) -> float:
+    """Φ_i and ∇_jΦ_i for every j; see ``nf_along_direction`` (θ_d given as an angle, rad)."""
+    phi, _ = nf_along_direction(
+        i, pos, status, waypoint_x, waypoint_y, math.cos(theta_d), math.sin(theta_d), params, grad_out
+    )
+    return phi
+
+
+@njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+def nf_along_direction(
+    i: int,
+    pos: np.ndarray,
+    status: np.ndarray,
+    waypoint_x: float,
+    waypoint_y: float,
+    ed_x: float,
+    ed_y: float,
+    params: np.ndarray,
+    grad_out: np.ndarray,
+) -> tuple[float, int]:
     """Φ_i and its closed-form gradients with respect to every aircraft's position.
 
     Args:
@@ -104,13 +123,13 @@ def nf_value_and_gradients(
         pos: positions of the N aircraft of one world, shape (N, 2), nm.
         status: status of each aircraft, shape (N,); only FLYING aircraft are obstacles.
         waypoint_x, waypoint_y: aircraft i's current waypoint q_d, nm.
-        theta_d: desired orientation at the waypoint, rad.
+        ed_x, ed_y: unit vector of the desired orientation θ_d at the waypoint.
         params: parameter vector (layout ``P_*`` of this module).
         grad_out: output, shape (N, 2): row j receives ∇_jΦ_i (row i: ∇_iΦ_i), with
             respect to positions in units of L; rows of non-neighbours are zero.
 
     Returns:
-        Φ_i, dimensionless, in [0, 1].
+        (Φ_i, dimensionless in [0, 1]; the number of neighbours within the sensing radius).
     """
     n = pos.shape[0]
     inv_len = 1.0 / params[P_LENGTH]
@@ -120,10 +139,8 @@ def nf_value_and_gradients(
     r_sense = params[P_R_SENSE] * inv_len
     xi = pos[i, 0] * inv_len
     yi = pos[i, 1] * inv_len
-    dx = xi - waypoint_x * inv_len
-    dy = yi - waypoint_y * inv_len
-    ed_x = math.cos(theta_d)
-    ed_y = math.sin(theta_d)
+    dx = (pos[i, 0] - waypoint_x) * inv_len
+    dy = (pos[i, 1] - waypoint_y) * inv_len
 
     gamma = dx * dx + dy * dy
     p_axis = ed_x * dx + ed_y * dy
@@ -135,7 +152,9 @@ def nf_value_and_gradients(
     beta_s = r_sense * r_sense - contact * contact
     barrier = params[P_BARRIER] * inv_len
     c_bar = (barrier * barrier - contact * contact) / beta_s
+    r_sense2 = r_sense * r_sense
     g_prox = 1.0
+    n_near = 0
     for j in range(n):
         grad_out[j, 0] = 0.0
         grad_out[j, 1] = 0.0
@@ -144,7 +163,11 @@ def nf_value_and_gradients(
             continue
         rx = xi - pos[j, 0] * inv_len
         ry = yi - pos[j, 1] * inv_len
-        h, dh = proximity_bump((rx * rx + ry * ry - contact * contact) / beta_s, c_bar)
+        dist2 = rx * rx + ry * ry
+        if dist2 >= r_sense2:
+            continue  # beyond the sensing radius: h = 1, h' = 0
+        n_near += 1
+        h, dh = proximity_bump((dist2 - contact * contact) / beta_s, c_bar)
         g_prox *= h
         # h'_j ∇_j s_ij, with ∇_j s_ij = −2 (q_i − q_j) / β_s.
         grad_out[j, 0] = -2.0 * rx / beta_s * dh
@@ -153,7 +176,7 @@ def nf_value_and_gradients(
     # Π_{k≠j} h_k = G_i / h_j (zero when another neighbour touches, as it must be).
     grad_g_ix = 0.0
     grad_g_iy = 0.0
-    if g_prox > 0.0:
+    if n_near > 0 and g_prox > 0.0:
         for j in range(n):
             if grad_out[j, 0] == 0.0 and grad_out[j, 1] == 0.0:
                 continue
@@ -165,7 +188,7 @@ def nf_value_and_gradients(
             grad_out[j, 1] *= others
             grad_g_ix -= grad_out[j, 0]
             grad_g_iy -= grad_out[j, 1]
-    else:
+    elif n_near > 0:
         for j in range(n):
             grad_out[j, 0] = 0.0
             grad_out[j, 1] = 0.0
@@ -200,9 +223,10 @@ def nf_value_and_gradients(
     coef_gamma = scale * m
     coef_h = -scale * a_over_k * g_prox * beta0
     coef_beta0 = -scale * a_over_k * h_nh * g_prox
-    for j in range(n):
-        grad_out[j, 0] *= coef_g
-        grad_out[j, 1] *= coef_g
+    if n_near > 0:
+        for j in range(n):
+            grad_out[j, 0] *= coef_g
+            grad_out[j, 1] *= coef_g
     grad_out[i, 0] = (
         coef_gamma * 2.0 * dx
         + coef_h * 2.0 * p_axis * ed_x
@@ -215,10 +239,10 @@ def nf_value_and_gradients(
         + coef_beta0 * (-2.0 * yi)
         + coef_g * grad_g_iy
     )
-    return phi
+    return phi, n_near
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def proximity_function(i: int, pos: np.ndarray, status: np.ndarray, params: np.ndarray) -> float:
     """G_i alone (dimensionless, in [0, 1]); for tests and diagnostics."""
     inv_len = 1.0 / params[P_LENGTH]

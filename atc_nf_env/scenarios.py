@@ -29,7 +29,7 @@ ENCOUNTER_RADIUS_NM: float = 250.0
 WORKSPACE_RADIUS_NM: float = 1500.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Scenario:
     """Initial conditions of an encounter.
 
@@ -165,7 +165,7 @@ def random_encounter(
         raise ValueError(
             f"min_separation_nm = {min_separation_nm!r}: must be >= {SEPARATION_MIN_NM} nm"
         )
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(_check_seed(seed))
     # Points on a circle spaced by min_separation need n chords of that length.
     max_n = int(2 * np.pi * radius_nm / min_separation_nm)
     if n > max_n:
@@ -205,6 +205,16 @@ def random_encounter(
     )
 
 
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_seed(seed: Any) -> int:
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"seed = {seed!r}: must be an integer >= 0")
+    return int(seed)
+
+
 _ALLOWED_KEYS = {"name", "aircraft", "workspace_radius_nm", "start_airspeed_kt"}
 _ALLOWED_AIRCRAFT_KEYS = {"start", "destination", "heading_deg", "arrival_heading_deg"}
 
@@ -239,15 +249,14 @@ def scenario_from_dict(data: Mapping[str, Any]) -> Scenario:
             )
         for key in ("start", "destination"):
             value = entry.get(key)
-            if (
-                not isinstance(value, (list, tuple))
-                or len(value) != 2
-                or not all(isinstance(v, (int, float)) for v in value)
-            ):
+            if not isinstance(value, (list, tuple)) or len(value) != 2 or not all(_is_number(v) for v in value):
                 raise ValueError(f"aircraft[{index}].{key} = {value!r}: must be [x, y] in nm")
         start = np.array(entry["start"], dtype=float)
         dest = np.array(entry["destination"], dtype=float)
         bearing = math.atan2(dest[1] - start[1], dest[0] - start[0])
+        for key in ("heading_deg", "arrival_heading_deg"):
+            if key in entry and not _is_number(entry[key]):
+                raise ValueError(f"aircraft[{index}].{key} = {entry[key]!r}: must be a number of degrees")
         starts.append(start)
         dests.append(dest)
         headings.append(math.radians(entry["heading_deg"]) if "heading_deg" in entry else bearing)
@@ -257,7 +266,7 @@ def scenario_from_dict(data: Mapping[str, Any]) -> Scenario:
     kwargs: dict[str, Any] = {}
     for key in ("workspace_radius_nm", "start_airspeed_kt"):
         if key in data:
-            if not isinstance(data[key], (int, float)):
+            if not _is_number(data[key]):
                 raise ValueError(f"{key} = {data[key]!r}: must be a number")
             kwargs[key] = float(data[key])
     return Scenario(
@@ -279,6 +288,8 @@ def scenario_from_json(path: str | Path) -> Scenario:
         raise ValueError(f"scenario file {str(path)!r} does not exist") from None
     except json.JSONDecodeError as error:
         raise ValueError(f"scenario file {str(path)!r} is not valid JSON: {error}") from None
+    except OSError as error:
+        raise ValueError(f"scenario file {str(path)!r} cannot be read: {error.strerror}") from None
     return scenario_from_dict(data)
 
 

@@ -18,6 +18,8 @@ from atc_nf_env.kernel import (
     ARRIVED,
     FLYING,
     S_AIRSPEED,
+    S_COS_D,
+    S_SIN_D,
     S_DEST_HEADING,
     S_DEST_X,
     S_DEST_Y,
@@ -55,6 +57,8 @@ def initial_state(scenario: Scenario, n_worlds: int = 1, n_slots: int | None = N
     state[:, :n, S_WP_X] = scenario.dest_xy[:, 0]
     state[:, :n, S_WP_Y] = scenario.dest_xy[:, 1]
     state[:, :n, S_THETA_D] = scenario.dest_heading
+    state[:, :n, S_COS_D] = np.cos(scenario.dest_heading)
+    state[:, :n, S_SIN_D] = np.sin(scenario.dest_heading)
     state[:, :n, S_FRESH] = 1.0
     state[:, :n, S_STATUS] = FLYING
     return state
