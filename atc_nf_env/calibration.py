@@ -167,3 +167,38 @@ def plot_calibration(config: SimConfig, path: str) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Recompute the gains, print the speed targets, and write the figure."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description="Calibrate the NF speed gains and check the envelope.")
+    parser.add_argument("--figure", default="out/calibration.png", help="where to write the figure")
+    args = parser.parse_args(argv)
+    config = calibrate()
+    print(f"k_u = {config.k_u:.6g} kt, k_z = {config.k_z:.6g} kt (workspace {WORKSPACE_RADIUS_NM:g} nm)")
+    at_100 = unobstructed_airspeed(config, np.array([CALIBRATION_DISTANCE_NM]))
+    print(
+        f"airspeed 100 nm from the waypoint: median {at_100.median_kt[0]:.1f} kt, "
+        f"range {at_100.min_kt[0]:.1f}..{at_100.max_kt[0]:.1f} kt over the flight region"
+    )
+    window = unobstructed_airspeed(config, np.linspace(WINDOW_NM[0], WINDOW_NM[1], 11))
+    print(
+        f"airspeed from {WINDOW_NM[1]:g} down to {WINDOW_NM[0]:g} nm: "
+        f"{window.min_kt.min():.1f}..{window.max_kt.max():.1f} kt (envelope "
+        f"[{config.airspeed_min_kt:g}, {config.airspeed_max_kt:g}])"
+    )
+    alone = nf_alone_airspeed(config, np.array([500.0, 100.0, 10.0, 1.0]))
+    print("NF alone aimed 500 nm away: " + ", ".join(
+        f"{s:.0f} kt at {d:g} nm" for s, d in zip(alone, (500, 100, 10, 1))))
+    from pathlib import Path
+
+    Path(args.figure).parent.mkdir(parents=True, exist_ok=True)
+    plot_calibration(config, args.figure)
+    print(f"figure written to {args.figure}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -3,7 +3,7 @@
 A 66-min flight in the MPC's regime: one aircraft under wind whose waypoint is reset
 every 5 min to 100 nm ahead on the line to its destination (so the NF commands
 cruise airspeed throughout, as under the MPC), plus two aircraft of a crossing pair
-passing 15 nm apart with the same waypoint rule (the neighbour terms of the law
+passing about 11 nm apart with the same waypoint rule (the neighbour terms of the law
 active). For each step dt the end position after 66 min is compared with the one at
 dt/2; the default step is the largest whose halving moves every end point by less
 than 0.1 nm.
@@ -48,9 +48,9 @@ def cases() -> list[tuple[str, Scenario, np.ndarray]]:
     ]
     crossing = Scenario(
         name="crossing",
-        start_xy=np.array([[-250.0, -7.5], [7.5, -250.0]]),
+        start_xy=np.array([[-250.0, -8.0], [8.0, -250.0]]),
         start_heading=np.array([0.0, math.pi / 2]),
-        dest_xy=np.array([[700.0, -7.5], [7.5, 700.0]]),
+        dest_xy=np.array([[700.0, -8.0], [8.0, 700.0]]),
         dest_heading=np.array([0.0, math.pi / 2]),
     )
     return lone + [("crossing pair", crossing, np.array([6.0, 8.0]))]

@@ -47,7 +47,7 @@ def configurations(draw):
     while len(pos) < n:
         # Half the neighbours close to aircraft 0, inside the sensing radius.
         centre = pos[0] if rng.random() < 0.5 else np.zeros(2)
-        spread = 35.0 if centre is pos[0] else 300.0
+        spread = 12.0 if centre is pos[0] else 300.0
         candidate = centre + rng.uniform(-spread, spread, 2)
         # Stay off the kinks of the C¹ cut-offs, where one-sided derivatives differ
         # at second order and finite differences are not a fair judge.
@@ -72,8 +72,9 @@ def test_closed_form_gradients_match_central_differences(config):
 
 
 def test_gradients_with_neighbours_inside_the_barrier():
-    """A neighbour 8 nm away (inside the 10 nm barrier) and one at 30 nm: ∇_jΦ_i is non-zero."""
-    pos = np.array([[0.0, 0.0], [8.0, 1.0], [-20.0, 22.0], [200.0, 0.0]])
+    """A neighbour 6 nm away (inside the 7 nm barrier) and one at 10 nm (inside the 12 nm
+    sensing radius): ∇_jΦ_i is non-zero for both, zero for the one beyond."""
+    pos = np.array([[0.0, 0.0], [6.0, 1.0], [-8.0, 6.0], [200.0, 0.0]])
     wp = np.array([90.0, 30.0])
     _, analytic = phi_and_grad(0, pos, wp, 0.3)
     numeric = finite_difference_gradient(0, pos, wp, 0.3)
@@ -112,7 +113,7 @@ def test_phi_is_zero_only_at_the_destination():
 def test_phi_is_positive_at_the_destination_when_a_neighbour_is_close():
     """f_i(G_i) keeps Φ_i > 0 at the destination while a neighbour is close (paper II-C)."""
     wp = (0.0, 0.0)
-    pos = np.array([[0.0, 0.0], [6.0, 0.0]])
+    pos = np.array([[0.0, 0.0], [5.5, 0.0]])
     phi, _ = phi_and_grad(0, pos, wp, 0.0)
     assert phi > 0.0
 
@@ -122,7 +123,7 @@ def test_proximity_is_zero_exactly_when_disks_touch():
     contact = 2 * CONFIG.aircraft_radius_nm
     touching = np.array([[0.0, 0.0], [contact, 0.0]])
     assert nf.proximity_function(0, touching, status, PARAMS) == 0.0
-    for gap in (1e-6, 0.5, 5.0, 20.0):
+    for gap in (1e-6, 0.5, 3.0, 6.9):
         apart = np.array([[0.0, 0.0], [contact + gap, 0.0]])
         g = nf.proximity_function(0, apart, status, PARAMS)
         assert 0.0 < g < 1.0

@@ -1,0 +1,1 @@
+"""Reproduction experiments of the paper's section IV."""
