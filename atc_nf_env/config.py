@@ -53,16 +53,16 @@ class SimConfig:
     """
 
     k: float = 2.0
-    eps_nh: float = 0.1
+    eps_nh: float = 0.4
     length_scale_nm: float = 100.0
-    k_u: float = 88320.26624908243  # = calibration.calibrate().k_u (checked by a test)
+    k_u: float = 80714.74301826005  # = calibration.calibrate().k_u (checked by a test)
     k_z: float = 30.0
     k_theta: float = 1.0 / 30.0
     sensing_radius_nm: float = 12.0
     barrier_nm: float = 7.0
     f_a0: float = 0.01
     f_cutoff: float = 0.5
-    arrival_tolerance_nm: float = 2.0
+    arrival_tolerance_nm: float = 5.0
     dt_s: float = 5.0
     airspeed_min_kt: float = AIRSPEED_MIN_KT
     airspeed_max_kt: float = AIRSPEED_MAX_KT

@@ -1,4 +1,4 @@
-"""Convergence study of the integration step (explicit Euler).
+"""Convergence study of the integration step (second-order Adams-Bashforth).
 
 A 66-min flight in the MPC's regime: one aircraft under wind whose waypoint is reset
 every 5 min to 100 nm ahead on the line to its destination (so the NF commands
@@ -99,7 +99,11 @@ def main(argv: list[str] | None = None) -> int:
             *rows,
             "",
             f"Largest step whose halving moves every end point by < 0.1 nm: **{chosen:g} s** "
-            f"(default `SimConfig.dt_s` = {SimConfig().dt_s:g} s).",
+            f"(default `SimConfig.dt_s` = {SimConfig().dt_s:g} s). The integrator is second-order "
+            "Adams-Bashforth. The default is not the largest passing step: the MPC checks the "
+            "envelope and the separation at every integration step, and 5 s (0.63 nm of flight "
+            "at 454 kt) keeps that check fine while its halving error stays ten times under "
+            "the criterion.",
             "",
         ]
     )

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from atc_nf_env.cli import main
+from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import episode_wind_kt, run_episode
 from atc_nf_env.kernel import ARRIVED, FLYING, N_RECORD, S_STATUS
 from atc_nf_env.metrics import RunMetrics, summarize
@@ -104,7 +105,7 @@ def test_calm_converging_3_all_arrive_without_loss(calm_pair) -> None:
     assert m.min_separation_nm is not None and m.min_separation_nm >= 5.0
     assert all(0 < t < 4 * 60 for t in m.flight_time_min)
     # Each path is at least the 500 nm straight line to the opposite side.
-    assert all(p >= 2 * 250.0 - 2.0 - 1e-6 for p in m.path_length_nm)
+    assert all(p >= 2 * 250.0 - SimConfig().arrival_tolerance_nm - 1e-6 for p in m.path_length_nm)
     assert m.decisions == len(result.waypoints) == len(result.decision_times_s) >= 1
     # NFDirect always asks for the destinations.
     np.testing.assert_array_equal(result.waypoints[0], scenario.dest_xy)
@@ -120,7 +121,8 @@ def test_calm_episode_records(calm_pair) -> None:
     assert result.times_s[0] == 0.0
     # The first row is the start, the last is within the arrival tolerance of the destination.
     np.testing.assert_allclose(r[0, :, 0:2], make_scenario("converging-3").start_xy)
-    assert np.all(np.hypot(*(r[-1, :, 0:2] - make_scenario("converging-3").dest_xy).T) <= 2.0 + 1e-9)
+    tolerance = SimConfig().arrival_tolerance_nm
+    assert np.all(np.hypot(*(r[-1, :, 0:2] - make_scenario("converging-3").dest_xy).T) <= tolerance + 1e-9)
 
 
 def test_same_seed_bit_identical(calm_pair) -> None:

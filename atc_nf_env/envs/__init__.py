@@ -1,0 +1,177 @@
+"""The environments: PettingZoo (``parallel_env``, ``env``, ``raw_env``), the centralized
+Gymnasium env (``atc_nf_env/Encounter-v0``) and its native vector env.
+
+Every environment takes the same keyword arguments, checked here (``EnvConfig``):
+
+    scenario            "converging-N", "random-N" (a new encounter every reset, drawn
+                        from the env's seed), a path to a .json file, a dict
+                        (``Scenario.to_dict()``'s format) or a Scenario. Default
+                        "converging-4".
+    wind_sigma          standard deviation of each wind component, m/s (default 5.17).
+    render_mode         None, "rgb_array" or "human".
+    max_aircraft        aircraft slots (default: the scenario's number); a scenario with
+                        fewer aircraft is padded and masked.
+    n_neighbours        K nearest neighbours in each observation (default 4).
+    max_episode_minutes time limit, min (default 180); truncation after
+                        ceil(limit / 5 min) decisions.
+    expose_wind         put the true wind in observations, state and info (default False).
+    action_mapping      ActionMapping or dict (default 100 ± 40 nm, ±90°).
+    reward_weights      RewardWeights or dict (see ``atc_nf_env.envs.rewards``).
+    config              SimConfig: NF gains and integrator (the calibrated defaults).
+    render_size_px      side of the rendered square frame, pixels (default 512).
+
+Units at the API: nm, kt, s (the wind's σ in m/s, as in the paper). One env step is
+one decision period T = 300 s flown by the batched kernel.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field, fields
+from typing import Any, Mapping
+
+import numpy as np
+
+from atc_nf_env.config import SimConfig
+from atc_nf_env.envs.actions import ActionMapping
+from atc_nf_env.envs.rewards import RewardWeights
+from atc_nf_env.episode import episode_wind_kt
+from atc_nf_env.scenarios import Scenario, make_scenario
+from atc_nf_env.units import DECISION_PERIOD_S, WIND_SIGMA_MPS
+
+#: Default time limit, min: the 6-aircraft encounter's flights take ~70-90 min.
+MAX_EPISODE_MINUTES: float = 180.0
+RENDER_MODES: tuple[str, ...] = ("human", "rgb_array")
+_RANDOM = re.compile(r"^random-(\d+)$")
+#: Largest episode seed drawn by a reset without a seed.
+EPISODE_SEED_BOUND: int = 2**31 - 1
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """The common keyword arguments of every environment (see the module docstring)."""
+
+    scenario: Any = "converging-4"
+    wind_sigma: float = WIND_SIGMA_MPS
+    render_mode: str | None = None
+    max_aircraft: int | None = None
+    n_neighbours: int = 4
+    max_episode_minutes: float = MAX_EPISODE_MINUTES
+    expose_wind: bool = False
+    action_mapping: ActionMapping = field(default_factory=ActionMapping)
+    reward_weights: RewardWeights = field(default_factory=RewardWeights)
+    config: SimConfig = field(default_factory=SimConfig)
+    render_size_px: int = 512
+
+    @classmethod
+    def from_kwargs(cls, kwargs: Mapping[str, Any], where: str) -> "EnvConfig":
+        """Validate keyword arguments; ValueError naming the bad one and what is allowed."""
+        allowed = [f.name for f in fields(cls)]
+        unknown = sorted(set(kwargs) - set(allowed))
+        if unknown:
+            raise ValueError(f"{where}: unknown keyword argument(s) {unknown}; allowed: {allowed}")
+        values = dict(kwargs)
+        values["action_mapping"] = ActionMapping.coerce(values.get("action_mapping"))
+        values["reward_weights"] = RewardWeights.coerce(values.get("reward_weights"))
+        config = values.get("config")
+        if config is None:
+            values["config"] = SimConfig()
+        elif not isinstance(config, SimConfig):
+            raise ValueError(f"{where}: config = {config!r}: must be a SimConfig (atc_nf_env.config)")
+        return cls(**values)
+
+    def __post_init__(self) -> None:
+        sigma = self.wind_sigma
+        if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not (math.isfinite(sigma) and sigma >= 0):
+            raise ValueError(f"wind_sigma = {sigma!r}: must be a finite number >= 0 (m/s)")
+        if self.render_mode is not None and self.render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode = {self.render_mode!r}: allowed: None, {', '.join(map(repr, RENDER_MODES))}")
+        if self.max_aircraft is not None and (
+            isinstance(self.max_aircraft, bool) or not isinstance(self.max_aircraft, (int, np.integer)) or self.max_aircraft < 1
+        ):
+            raise ValueError(f"max_aircraft = {self.max_aircraft!r}: must be an integer >= 1 (or None)")
+        if isinstance(self.n_neighbours, bool) or not isinstance(self.n_neighbours, (int, np.integer)) or self.n_neighbours < 0:
+            raise ValueError(f"n_neighbours = {self.n_neighbours!r}: must be an integer >= 0")
+        minutes = self.max_episode_minutes
+        if isinstance(minutes, bool) or not isinstance(minutes, (int, float)) or not (math.isfinite(minutes) and minutes > 0):
+            raise ValueError(f"max_episode_minutes = {minutes!r}: must be a finite number > 0")
+        if not isinstance(self.expose_wind, (bool, np.bool_)):
+            raise ValueError(f"expose_wind = {self.expose_wind!r}: must be True or False")
+        size = self.render_size_px
+        if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 64 <= size <= 4096:
+            raise ValueError(f"render_size_px = {size!r}: must be an integer in [64, 4096]")
+
+    @property
+    def max_decisions(self) -> int:
+        """Decisions before truncation: ceil(time limit / T)."""
+        return max(1, math.ceil(self.max_episode_minutes * 60.0 / DECISION_PERIOD_S - 1e-9))
+
+
+class ScenarioSource:
+    """Resolves the ``scenario`` argument: a fixed scenario, or ``random-N`` drawn per episode."""
+
+    def __init__(self, spec: Any) -> None:
+        self.spec = spec
+        self.random_n: int | None = None
+        if isinstance(spec, str) and _RANDOM.match(spec):
+            self.random_n = int(_RANDOM.match(spec).group(1))  # type: ignore[union-attr]
+        if not isinstance(spec, (str, Mapping, Scenario)):
+            raise ValueError(
+                f"scenario = {spec!r}: must be a name ('converging-3', 'converging-4', 'converging-6', "
+                "'random-N'), a path to a .json file, a dict or a Scenario"
+            )
+        self.template: Scenario = make_scenario(spec, seed=0)
+
+    @property
+    def n_aircraft(self) -> int:
+        return self.template.n_aircraft
+
+    @property
+    def workspace_radius_nm(self) -> float:
+        return self.template.workspace_radius_nm
+
+    def scenario(self, episode_seed: int) -> Scenario:
+        """The scenario of the episode with this seed (a new draw for random-N)."""
+        if self.random_n is None:
+            return self.template
+        return make_scenario(self.spec, seed=episode_seed)
+
+
+def draw_episode_seed(rng: np.random.Generator) -> int:
+    """An episode seed drawn from an env's np_random (for resets without a seed)."""
+    return int(rng.integers(0, EPISODE_SEED_BOUND))
+
+
+def episode_wind(episode_seed: int, wind_sigma_mps: float) -> np.ndarray:
+    """The hidden wind of an episode, kt: ``atc_nf_env.episode.episode_wind_kt``, so that
+    ``reset(seed=s)`` meets the same wind as ``run_episode(..., seed=s)`` and the CLI."""
+    return episode_wind_kt(episode_seed, wind_sigma_mps)
+
+
+_LAZY = {
+    "ATCParallelEnv": "atc_nf_env.envs.parallel",
+    "parallel_env": "atc_nf_env.envs.parallel",
+    "env": "atc_nf_env.envs.parallel",
+    "raw_env": "atc_nf_env.envs.parallel",
+    "EncounterEnv": "atc_nf_env.envs.centralized",
+    "EncounterVectorEnv": "atc_nf_env.envs.vector",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'atc_nf_env.envs' has no attribute {name!r}")
+
+
+__all__ = [
+    "ActionMapping",
+    "EnvConfig",
+    "MAX_EPISODE_MINUTES",
+    "RewardWeights",
+    "ScenarioSource",
+    *_LAZY,
+]

@@ -1,0 +1,154 @@
+"""The per-aircraft reward of one decision period (T = 300 s) and its weights.
+
+    r_i = progress_per_100nm · (d_i(t) − d_i(t + T)) / 100 nm
+          − envelope_violation · (steps outside the airspeed envelope / steps flown)
+          − loss_of_separation · (number of other aircraft closer than 5 nm at some step)
+          + arrival_bonus · [i arrived during the period]
+          − left_workspace_penalty · [i left the workspace during the period]
+
+d_i is the distance to go (nm) from the aircraft to its destination. The envelope and
+separation terms are measured by the kernel at integration-step resolution (dt = 5 s):
+``Trace.violation_steps / Trace.steps_flown`` and ``Trace.los_pairs``. A loss of
+separation is charged to both aircraft of the pair, so the centralized env's summed
+reward charges it twice. Aircraft that were no longer flying at the start of the
+period get 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any, Mapping
+
+import numpy as np
+
+from atc_nf_env.kernel import Trace
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """Weights of the reward terms (all >= 0; see the module docstring).
+
+    Attributes:
+        progress_per_100nm: reward per 100 nm of distance to go flown off.
+        envelope_violation: penalty for a period flown entirely outside the airspeed
+            envelope [366, 540] kt (scaled by the fraction of integration steps outside).
+        loss_of_separation: penalty per other aircraft that came within the separation
+            minimum (5 nm) during the period.
+        arrival_bonus: bonus on arrival (within Δ = 2 nm of the destination).
+        left_workspace_penalty: penalty on leaving the workspace (0 by default: leaving
+            needs over 1000 nm flown away, which the progress term already punishes).
+    """
+
+    progress_per_100nm: float = 1.0
+    envelope_violation: float = 1.0
+    loss_of_separation: float = 5.0
+    arrival_bonus: float = 5.0
+    left_workspace_penalty: float = 0.0
+
+    def __post_init__(self) -> None:
+        for field in fields(self):
+            value = getattr(self, field.name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"RewardWeights.{field.name} = {value!r}: must be a finite number")
+            if value < 0:
+                raise ValueError(
+                    f"RewardWeights.{field.name} = {value!r}: must be >= 0 (penalties are subtracted)"
+                )
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+    @classmethod
+    def coerce(cls, value: "RewardWeights | Mapping[str, Any] | None") -> "RewardWeights":
+        """RewardWeights from itself, a dict of (some of) its fields, or None (the defaults)."""
+        if value is None:
+            return cls()
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, Mapping):
+            allowed = [f.name for f in fields(cls)]
+            unknown = sorted(set(value) - set(allowed))
+            if unknown:
+                raise ValueError(f"reward_weights: unknown fields {unknown}; allowed: {allowed}")
+            return cls(**value)
+        raise ValueError(
+            f"reward_weights = {value!r}: must be a RewardWeights or a dict with fields "
+            f"{[f.name for f in fields(cls)]}"
+        )
+
+
+@dataclass
+class StepOutcome:
+    """What one decision period did to every aircraft of B worlds (arrays (B, N)).
+
+    Attributes:
+        rewards: per-aircraft rewards (0 for aircraft not flying at the start).
+        flew: the aircraft was flying at the start of the period.
+        arrived_now, left_now: it arrived / left the workspace during the period.
+        violation_fraction: fraction of its integration steps outside the envelope.
+        los_count: other aircraft that came within the separation minimum.
+        progress_nm: distance to go flown off, nm.
+        distance_to_go_nm: distance to the destination at the end, nm.
+    """
+
+    rewards: np.ndarray
+    flew: np.ndarray
+    arrived_now: np.ndarray
+    left_now: np.ndarray
+    violation_fraction: np.ndarray
+    los_count: np.ndarray
+    progress_nm: np.ndarray
+    distance_to_go_nm: np.ndarray
+
+
+def step_outcome(
+    flying_before: np.ndarray,
+    distance_before_nm: np.ndarray,
+    distance_after_nm: np.ndarray,
+    arrived_after: np.ndarray,
+    left_after: np.ndarray,
+    trace: Trace,
+    weights: RewardWeights,
+    n_aircraft: int | None = None,
+) -> StepOutcome:
+    """Rewards and per-aircraft outcome of one period from the kernel's trace.
+
+    Args:
+        flying_before: (B, N) bool, flying at the start of the period.
+        distance_before_nm, distance_after_nm: (B, N) distance to go, nm.
+        arrived_after, left_after: (B, N) bool status at the end.
+        trace: the kernel's trace of the period (its first N aircraft are used).
+        weights: the reward weights.
+        n_aircraft: N (default: flying_before.shape[1]).
+    """
+    n = flying_before.shape[1] if n_aircraft is None else n_aircraft
+    steps = trace.steps_flown[:, :n]
+    fraction = np.divide(
+        trace.violation_steps[:, :n], steps, out=np.zeros(steps.shape), where=steps > 0
+    )
+    los_count = trace.los_pairs[:, :n, :n].sum(axis=-1, dtype=np.int64)
+    arrived_now = flying_before & arrived_after
+    left_now = flying_before & left_after
+    progress = np.where(flying_before, distance_before_nm - distance_after_nm, 0.0)
+    rewards = (
+        weights.progress_per_100nm * progress / 100.0
+        - weights.envelope_violation * fraction
+        - weights.loss_of_separation * los_count
+        + weights.arrival_bonus * arrived_now
+        - weights.left_workspace_penalty * left_now
+    )
+    rewards = np.where(flying_before, rewards, 0.0)
+    return StepOutcome(
+        rewards=rewards,
+        flew=flying_before,
+        arrived_now=arrived_now,
+        left_now=left_now,
+        violation_fraction=fraction,
+        los_count=los_count,
+        progress_nm=progress,
+        distance_to_go_nm=distance_after_nm,
+    )
+
+
+__all__ = ["RewardWeights", "StepOutcome", "step_outcome"]
