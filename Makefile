@@ -1,5 +1,5 @@
 # Two commands do all the set-up on a fresh machine:
-#   make demo   # the MCMC-MPC flying the paper's 4-aircraft encounter (for now: the NF alone)
+#   make demo   # the MCMC-MPC flying the paper's 4-aircraft encounter under wind
 #   make test   # the test suite
 PYTHON ?= python3
 VENV ?= .venv
@@ -10,11 +10,11 @@ BIN := $(VENV)/bin
 $(BIN)/atc-nf: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e ".[test,rl]"
+	$(BIN)/pip install --quiet -e ".[test,rl,ray]"
 	touch $@
 
 demo: $(BIN)/atc-nf
-	$(BIN)/atc-nf fly --policy nf --scenario converging-4 --wind-sigma 0 --seed 0 \
+	$(BIN)/atc-nf fly --policy mpc --scenario converging-4 --wind-sigma 5.17 --seed 0 \
 		--summary-json out/summary.json --plots out/figs
 
 test: $(BIN)/atc-nf

@@ -9,22 +9,10 @@ from pathlib import Path
 from typing import Sequence
 
 from atc_nf_env.episode import MAX_EPISODE_S, run_episode
+from atc_nf_env.evaluate import BACKENDS, BUILTIN_POLICIES, Study, evaluate, make_policy
 from atc_nf_env.metrics import format_run, peak_rss_mb, summarize
-from atc_nf_env.policy import Policy
 from atc_nf_env.scenarios import make_scenario
 from atc_nf_env.units import WIND_SIGMA_MPS
-
-POLICIES = ("nf",)
-
-
-def make_policy(name: str) -> Policy:
-    """A policy by its command-line name."""
-    if name == "nf":
-        from baselines import NFDirect
-
-        return NFDirect()
-    raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICIES)}")
-
 
 def _non_negative_float(text: str) -> float:
     value = float(text)
@@ -33,8 +21,36 @@ def _non_negative_float(text: str) -> float:
     return value
 
 
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be an integer >= 1")
+    return value
+
+
+def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("MCMC-MPC settings (policy mpc; defaults are the paper's)")
+    group.add_argument("--extractions", type=_positive_int, help="K, proposals per decision (1000)")
+    group.add_argument("--horizon", type=_positive_int, help="N, periods in the horizon (4)")
+    group.add_argument("--wind-model", choices=("none", "sampled", "estimated"),
+                       help="the MPC's prediction wind (estimated)")
+    group.add_argument("--constraint-check", choices=("every-step", "sampling-instants"),
+                       help="where the MPC checks the envelope and separation (every-step)")
+    group.add_argument("--acceptance", choices=("standard", "table-i"),
+                       help="Metropolis-Hastings acceptance: standard, or as printed in Table I")
+    group.add_argument("--cost-exponent", type=float, help="J, the chain's target is C^-J (1)")
+
+
+def _policy_kwargs(args: argparse.Namespace) -> dict:
+    names = ("extractions", "horizon", "wind_model", "constraint_check", "acceptance", "cost_exponent")
+    kwargs = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
+    if kwargs and args.policy != "mpc":
+        raise ValueError(f"--{next(iter(kwargs)).replace('_', '-')} applies to --policy mpc only")
+    return kwargs
+
+
 def _add_episode_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--policy", default="nf", help=f"the policy: {', '.join(POLICIES)}")
+    parser.add_argument("--policy", default="nf", help=f"the policy: {', '.join(BUILTIN_POLICIES)}")
     parser.add_argument(
         "--scenario",
         default="converging-4",
@@ -54,11 +70,12 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
         help="time limit of an episode, min",
     )
     parser.add_argument("--summary-json", type=Path, help="write the summary metrics to this JSON file")
+    _add_mpc_options(parser)
 
 
 def _fly(args: argparse.Namespace) -> int:
     scenario = make_scenario(args.scenario, seed=args.seed)
-    policy = make_policy(args.policy)
+    policy = make_policy(args.policy, **_policy_kwargs(args))
     result = run_episode(
         policy,
         scenario,
@@ -68,9 +85,13 @@ def _fly(args: argparse.Namespace) -> int:
         record_every=1 if args.plots else 0,
     )
     print(format_run(result.metrics))
+    info = policy.episode_info() if hasattr(policy, "episode_info") else {}
+    if info:
+        print("  policy: " + ", ".join(f"{key} {value}" for key, value in info.items()))
     if args.summary_json:
         summary = summarize([result.metrics], peak_rss_mb=peak_rss_mb())
         summary["policy"] = args.policy
+        summary["policy_info"] = info
         summary["run"] = result.metrics.to_dict()
         args.summary_json.parent.mkdir(parents=True, exist_ok=True)
         args.summary_json.write_text(json.dumps(summary, indent=2) + "\n")
@@ -80,6 +101,34 @@ def _fly(args: argparse.Namespace) -> int:
 
         paths = write_episode_plots(result, args.plots, f"{scenario.name}_{args.policy}")
         print("figures written: " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    study = Study(
+        policy=args.policy,
+        scenario=args.scenario,
+        wind_sigma_mps=args.wind_sigma,
+        policy_kwargs=_policy_kwargs(args),
+        max_time_s=args.max_minutes * 60.0,
+    )
+    summary = evaluate(
+        study,
+        args.runs,
+        first_seed=args.seed,
+        workers=args.workers,
+        backend=args.backend,
+        out=args.out,
+        resume=args.resume,
+        progress=not args.no_progress,
+    )
+    summary["policy"] = args.policy
+    text = json.dumps(summary, indent=2)
+    print(text)
+    if args.summary_json:
+        args.summary_json.parent.mkdir(parents=True, exist_ok=True)
+        args.summary_json.write_text(text + "\n")
+        print(f"summary written to {args.summary_json}", file=sys.stderr)
     return 0
 
 
@@ -93,6 +142,16 @@ def build_parser() -> argparse.ArgumentParser:
     _add_episode_options(fly)
     fly.add_argument("--plots", type=Path, help="write trajectory and airspeed figures into this folder")
     fly.set_defaults(handler=_fly)
+
+    ev = sub.add_parser("evaluate", help="a Monte Carlo study: many seeded episodes, in parallel, resumable")
+    _add_episode_options(ev)
+    ev.add_argument("--runs", type=_positive_int, default=100, help="number of episodes (seeds SEED..SEED+RUNS-1)")
+    ev.add_argument("--workers", type=_positive_int, help="worker processes (default: all cores)")
+    ev.add_argument("--backend", choices=BACKENDS, default="local", help="local processes or a Ray cluster")
+    ev.add_argument("--out", type=Path, help="JSON-lines file receiving every finished run")
+    ev.add_argument("--resume", action="store_true", help="finish the study in --out, skipping runs already there")
+    ev.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ev.set_defaults(handler=_evaluate)
     return parser
 
 
