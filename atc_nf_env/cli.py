@@ -132,6 +132,12 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _reproduce(args: argparse.Namespace) -> int:
+    from atc_nf_env.experiments import reproduce
+
+    return reproduce.main(args.rest)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="atc-nf",
@@ -152,12 +158,21 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--resume", action="store_true", help="finish the study in --out, skipping runs already there")
     ev.add_argument("--no-progress", action="store_true", help="no progress bar")
     ev.set_defaults(handler=_evaluate)
+
+    rep = sub.add_parser("reproduce", help="the paper's figures and the reproduction table from fresh runs",
+                         add_help=False)
+    rep.set_defaults(handler=_reproduce)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "reproduce":
+        # The experiment owns its options (and its --help).
+        args = argparse.Namespace(command="reproduce", handler=_reproduce, rest=argv[1:])
+    else:
+        args = parser.parse_args(argv)
     try:
         return args.handler(args)
     except ValueError as error:

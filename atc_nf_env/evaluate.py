@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
+from atc_nf_env import kernel
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import MAX_EPISODE_S, run_episode
 from atc_nf_env.metrics import RunMetrics, peak_rss_mb, summarize
@@ -59,6 +60,9 @@ class Study:
     wind_sigma_mps: float = WIND_SIGMA_MPS
     policy_kwargs: dict[str, Any] = field(default_factory=dict)
     max_time_s: float = MAX_EPISODE_S
+    #: Keep each run's airspeeds every this many seconds (for the paper's Figs. 4 and 9),
+    #: as ``airspeed_series_kt`` [aircraft][sample], null once the aircraft is gone.
+    airspeed_every_s: float | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.wind_sigma_mps) and self.wind_sigma_mps >= 0):
@@ -75,6 +79,7 @@ class Study:
             "wind_sigma_mps": self.wind_sigma_mps,
             "policy_kwargs": self.policy_kwargs,
             "max_time_s": self.max_time_s,
+            "airspeed_every_s": self.airspeed_every_s,
             "config": SimConfig().as_dict(),
         }
 
@@ -83,10 +88,25 @@ def run_one(study: Study, seed: int) -> dict[str, Any]:
     """One run of the study: the metrics dict that goes on one line of the results file."""
     policy = make_policy(study.policy, **study.policy_kwargs)
     scenario = make_scenario(study.scenario, seed=seed)
+    record_every = 0
+    if study.airspeed_every_s:
+        record_every = kernel.steps_for(study.airspeed_every_s, SimConfig().dt_s)
     result = run_episode(
-        policy, scenario, seed=seed, wind_sigma_mps=study.wind_sigma_mps, max_time_s=study.max_time_s
+        policy,
+        scenario,
+        seed=seed,
+        wind_sigma_mps=study.wind_sigma_mps,
+        max_time_s=study.max_time_s,
+        record_every=record_every,
     )
     record = result.metrics.to_dict()
+    if record_every:
+        flew = result.records[..., kernel.R_FLEW] > 0
+        speeds = result.records[..., kernel.R_AIRSPEED]
+        record["airspeed_series_kt"] = [
+            [round(float(v), 2) if f else None for v, f in zip(speeds[:, i], flew[:, i])]
+            for i in range(speeds.shape[1])
+        ]
     info = getattr(policy, "episode_info", None)
     record["policy_info"] = info() if callable(info) else {}
     record["peak_rss_mb"] = peak_rss_mb()
