@@ -25,6 +25,9 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any, Mapping
 
 import numpy as np
+from numba import njit
+
+from atc_nf_env.kernel import FLYING, S_DEST_X, S_DEST_Y, S_STATUS, S_WP_X, S_WP_Y, S_X, S_Y
 
 #: Distance kept between a clamped waypoint and the edge of the allowed disk, nm.
 WORKSPACE_MARGIN_NM: float = 1.0
@@ -183,6 +186,62 @@ def waypoint_to_action(
     return np.clip(action, -1.0, 1.0).astype(np.float32)
 
 
+@njit(cache=True, error_model="numpy")
+def _waypoints_from_state(
+    actions: np.ndarray,
+    state: np.ndarray,
+    distance_nm: float,
+    span_nm: float,
+    angle_span_rad: float,
+    limit_nm: float,
+    out: np.ndarray,
+) -> None:
+    for b in range(state.shape[0]):
+        for i in range(state.shape[1]):
+            if state[b, i, S_STATUS] != FLYING:
+                out[b, i, 0] = state[b, i, S_WP_X]
+                out[b, i, 1] = state[b, i, S_WP_Y]
+                continue
+            x = state[b, i, S_X]
+            y = state[b, i, S_Y]
+            bearing = math.atan2(state[b, i, S_DEST_Y] - y, state[b, i, S_DEST_X] - x)
+            a0 = min(max(actions[b, i, 0], -1.0), 1.0)
+            a1 = min(max(actions[b, i, 1], -1.0), 1.0)
+            distance = distance_nm + span_nm * a0
+            angle = bearing + angle_span_rad * a1
+            wx = x + distance * math.cos(angle)
+            wy = y + distance * math.sin(angle)
+            radius = math.sqrt(wx * wx + wy * wy)
+            if radius > limit_nm:
+                wx *= limit_nm / radius
+                wy *= limit_nm / radius
+            out[b, i, 0] = wx
+            out[b, i, 1] = wy
+
+
+def waypoints_for_state(
+    actions: np.ndarray,
+    state: np.ndarray,
+    mapping: ActionMapping,
+    workspace_radius_nm: float,
+    aircraft_radius_nm: float = 2.5,
+) -> np.ndarray:
+    """Waypoints (B, N, 2) nm for the aircraft of a kernel state (B, N, N_STATE) from
+    finite actions (B, N, 2) (clipped to [-1, 1] here): ``action_to_waypoint`` with the
+    workspace clamp, compiled. Aircraft not flying keep their current waypoint."""
+    out = np.empty((state.shape[0], state.shape[1], 2))
+    _waypoints_from_state(
+        np.ascontiguousarray(actions, dtype=np.float64),
+        state,
+        float(mapping.distance_nm),
+        float(mapping.distance_span_nm),
+        math.radians(mapping.angle_span_deg),
+        workspace_radius_nm - aircraft_radius_nm - WORKSPACE_MARGIN_NM,
+        out,
+    )
+    return out
+
+
 __all__ = [
     "ActionMapping",
     "DEFAULT_MAPPING",
@@ -191,4 +250,5 @@ __all__ = [
     "clamp_to_workspace",
     "clip_actions",
     "waypoint_to_action",
+    "waypoints_for_state",
 ]

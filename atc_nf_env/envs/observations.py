@@ -33,6 +33,7 @@ the wind (/50 kt) only with ``expose_wind=True``. Padding slots are zeros.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -105,8 +106,10 @@ def _observe(
     expose_wind: bool,
     scales: np.ndarray,
     out: np.ndarray,
+    nearest: np.ndarray,
 ) -> None:
-    """Fill out (B, M, D) from state (B, N, S), N <= M; slots >= N and ABSENT ones are zeros."""
+    """Fill out (B, M, D) from state (B, N, S), N <= M; slots >= N and ABSENT ones are zeros.
+    nearest (B, M): distance to the nearest other aircraft still flying, nm (inf if none)."""
     n_worlds = state.shape[0]
     n = state.shape[1]
     inv_dist = 1.0 / scales[0]
@@ -117,6 +120,7 @@ def _observe(
     limit = scales[5]
     dim = out.shape[2]
     out[:] = 0.0
+    nearest[:] = np.inf
     dist2 = np.empty(n)
     order = np.empty(n, dtype=np.int64)
     for b in range(n_worlds):
@@ -158,6 +162,10 @@ def _observe(
                 dist2[m] = ex * ex + ey * ey
                 order[m] = j
                 m += 1
+                if dist2[m - 1] < nearest[b, i]:
+                    nearest[b, i] = dist2[m - 1]
+            if m > 0:
+                nearest[b, i] = math.sqrt(nearest[b, i])
             vx = u * ch
             vy = u * sh
             for k in range(min(n_neighbours, m)):
@@ -254,6 +262,7 @@ class ObservationSpec:
         low, high = self._bounds(self.labels())
         return spaces.Box(low=np.tile(low, n_slots), high=np.tile(high, n_slots), dtype=np.float32)
 
+    @functools.cached_property
     def _scales(self) -> np.ndarray:
         return np.array(
             [
@@ -281,18 +290,31 @@ class ObservationSpec:
             wind_kt: (B, 2) wind, kt (used only with ``expose_wind``).
             n_slots: M >= N slots (padding is zeros); N by default.
         """
+        return self.observe_with_nearest(state, time_fraction, wind_kt, n_slots)[0]
+
+    def observe_with_nearest(
+        self,
+        state: np.ndarray,
+        time_fraction: np.ndarray,
+        wind_kt: np.ndarray,
+        n_slots: int | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``observe``'s observations and (B, n_slots) float64: each aircraft's distance to
+        the nearest other aircraft still flying, nm (inf if none, and for padding)."""
         n_slots = state.shape[1] if n_slots is None else n_slots
         out = np.empty((state.shape[0], n_slots, self.dim), dtype=np.float32)
+        nearest = np.empty((state.shape[0], n_slots))
         _observe(
             state,
             np.ascontiguousarray(time_fraction, dtype=np.float64),
             np.ascontiguousarray(wind_kt, dtype=np.float64),
             self.n_neighbours,
             self.expose_wind,
-            self._scales(),
+            self._scales,
             out,
+            nearest,
         )
-        return out
+        return out, nearest
 
     # ------------------------------------------------------------------ global state
 

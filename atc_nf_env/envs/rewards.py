@@ -35,7 +35,8 @@ class RewardWeights:
             envelope [366, 540] kt (scaled by the fraction of integration steps outside).
         loss_of_separation: penalty per other aircraft that came within the separation
             minimum (5 nm) during the period.
-        arrival_bonus: bonus on arrival (within Δ = 2 nm of the destination).
+        arrival_bonus: bonus on arrival (within Δ = ``SimConfig.arrival_tolerance_nm``
+            of the destination).
         left_workspace_penalty: penalty on leaving the workspace (0 by default: leaving
             needs over 1000 nm flown away, which the progress term already punishes).
     """
@@ -123,22 +124,20 @@ def step_outcome(
         n_aircraft: N (default: flying_before.shape[1]).
     """
     n = flying_before.shape[1] if n_aircraft is None else n_aircraft
-    steps = trace.steps_flown[:, :n]
-    fraction = np.divide(
-        trace.violation_steps[:, :n], steps, out=np.zeros(steps.shape), where=steps > 0
-    )
+    # Every term is 0 for an aircraft that did not fly: it flew no step, lost no
+    # separation, and its progress and arrival are masked.
+    fraction = trace.violation_steps[:, :n] / np.maximum(trace.steps_flown[:, :n], 1)
     los_count = trace.los_pairs[:, :n, :n].sum(axis=-1, dtype=np.int64)
     arrived_now = flying_before & arrived_after
     left_now = flying_before & left_after
-    progress = np.where(flying_before, distance_before_nm - distance_after_nm, 0.0)
+    progress = (distance_before_nm - distance_after_nm) * flying_before
     rewards = (
-        weights.progress_per_100nm * progress / 100.0
+        (weights.progress_per_100nm / 100.0) * progress
         - weights.envelope_violation * fraction
         - weights.loss_of_separation * los_count
         + weights.arrival_bonus * arrived_now
         - weights.left_workspace_penalty * left_now
     )
-    rewards = np.where(flying_before, rewards, 0.0)
     return StepOutcome(
         rewards=rewards,
         flew=flying_before,
