@@ -5,7 +5,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench figures clean
+.PHONY: demo test bench reproduce clean
 
 $(BIN)/atc-nf: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,11 +21,13 @@ test: $(BIN)/atc-nf
 	$(BIN)/python -m pytest -q
 
 bench: $(BIN)/atc-nf
-	$(BIN)/python bench/bench_kernel.py
-	$(BIN)/python bench/integration_step_study.py
+	$(BIN)/python bench/bench_kernel.py --write
+	$(BIN)/python bench/integration_step_study.py --write
+	$(BIN)/python bench/bench_mpc.py --write
+	$(BIN)/python bench/bench_envs.py --write
 
-figures: $(BIN)/atc-nf
-	$(BIN)/python -m atc_nf_env.experiments.nf_alone --out out/nf_alone
+reproduce: $(BIN)/atc-nf
+	$(BIN)/atc-nf reproduce --runs 1000
 
 clean:
 	rm -rf $(VENV) out

@@ -82,7 +82,7 @@ def _fly(args: argparse.Namespace) -> int:
         seed=args.seed,
         wind_sigma_mps=args.wind_sigma,
         max_time_s=args.max_minutes * 60.0,
-        record_every=1 if args.plots else 0,
+        record_every=1 if (args.plots or args.animate) else 0,
     )
     print(format_run(result.metrics))
     info = policy.episode_info() if hasattr(policy, "episode_info") else {}
@@ -101,6 +101,10 @@ def _fly(args: argparse.Namespace) -> int:
 
         paths = write_episode_plots(result, args.plots, f"{scenario.name}_{args.policy}")
         print("figures written: " + ", ".join(str(p) for p in paths))
+    if args.animate:
+        from atc_nf_env.rendering import save_animation
+
+        print(f"animation written to {save_animation(result, args.animate, scenario=scenario)}")
     return 0
 
 
@@ -147,6 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
     fly = sub.add_parser("fly", help="fly one episode and print its metrics")
     _add_episode_options(fly)
     fly.add_argument("--plots", type=Path, help="write trajectory and airspeed figures into this folder")
+    fly.add_argument("--animate", type=Path, help="write a GIF animation of the episode to this file")
     fly.set_defaults(handler=_fly)
 
     ev = sub.add_parser("evaluate", help="a Monte Carlo study: many seeded episodes, in parallel, resumable")

@@ -382,3 +382,16 @@ def test_summary_of_a_real_run_matches_its_metrics(calm_pair) -> None:
     assert s["envelope_violation_fraction"] == pytest.approx(m.envelope_violation_fraction)
     assert s["flight_time_min"]["max"] == max(m.flight_time_min)
     assert math.isfinite(s["airspeed_kt"]["min"])
+
+
+def test_cli_fly_writes_an_animation(tmp_path) -> None:
+    gif = tmp_path / "episode.gif"
+    code = main(["fly", "--policy", "nf", "--scenario", "converging-3", "--wind-sigma", "0",
+                 "--max-minutes", "20", "--animate", str(gif)])
+    assert code == 0
+    data = gif.read_bytes()
+    assert data[:6] in (b"GIF87a", b"GIF89a")
+    from PIL import Image
+
+    with Image.open(gif) as image:
+        assert image.n_frames >= 10
