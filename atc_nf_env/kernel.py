@@ -563,6 +563,31 @@ def advance(
         violated=np.empty(n_worlds, dtype=np.bool_),
         record=np.zeros((n_worlds, n_record, n_aircraft, N_RECORD)),
     )
+    if n_worlds == 1:
+        # One world needs no thread pool: waking it costs more than the work itself, and
+        # far more when other processes hold the cores.
+        sep, done, bad = _advance_world(
+            state[0],
+            waypoints[0],
+            wind_kt[0, 0],
+            wind_kt[0, 1],
+            n_steps,
+            params,
+            grad[0],
+            command[0],
+            trace.min_airspeed_kt[0],
+            trace.max_airspeed_kt[0],
+            trace.violation_steps[0],
+            trace.worst_excursion_kt[0],
+            trace.steps_flown[0],
+            trace.los_pairs[0],
+            trace.record[0],
+            max(record_every, 1),
+        )
+        trace.min_separation_nm[0] = sep
+        trace.steps_done[0] = done
+        trace.violated[0] = bad
+        return trace
     _advance_batch(
         state,
         waypoints,
