@@ -58,6 +58,7 @@ import numpy as np
 from numba import njit, prange
 
 from atc_nf_env import nf
+from atc_nf_env.nf import FAST_MATH_FLAGS
 from atc_nf_env.nf import (
     ABSENT,
     ARRIVED,
@@ -127,7 +128,7 @@ _HALF_PI = 0.5 * math.pi
 _TWO_PI = 2.0 * math.pi
 
 
-@njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
 def _wrap(angle: float) -> float:
     """Angle wrapped to [−π, π)."""
     # Differences of wrapped angles lie within ±2π: one conditional shift is enough
@@ -139,7 +140,7 @@ def _wrap(angle: float) -> float:
     return angle - _TWO_PI * math.floor((angle + math.pi) / _TWO_PI)
 
 
-@njit(cache=True, fastmath=True, error_model="numpy")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _assign_waypoints(state: np.ndarray, waypoints: np.ndarray) -> None:
     """Store new waypoints and set θ_d where a waypoint changed."""
     for i in range(state.shape[0]):
@@ -160,7 +161,7 @@ def _assign_waypoints(state: np.ndarray, waypoints: np.ndarray) -> None:
         state[i, S_FRESH] = 1.0
 
 
-@njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
 def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py: float) -> float:
     """Distance from point p to the segment from (x0, y0) to (x1, y1)."""
     sx = x1 - x0
@@ -178,7 +179,7 @@ def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py:
     return math.sqrt(ex * ex + ey * ey)
 
 
-@njit(cache=True, fastmath=True, error_model="numpy")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _advance_world(
     state: np.ndarray,
     waypoints: np.ndarray,
@@ -391,7 +392,7 @@ def _advance_world(
     return math.sqrt(min_sep2), step, violated
 
 
-@njit(cache=True, fastmath=True, error_model="numpy", parallel=True)
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", parallel=True)
 def _advance_batch(
     state: np.ndarray,
     waypoints: np.ndarray,

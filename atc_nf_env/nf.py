@@ -39,6 +39,12 @@ import math
 import numpy as np
 from numba import njit
 
+#: Fast-math flags that cannot change a finite result: no NaN, no inf, no signed zero.
+#: Reassociation, contraction into FMA and approximate functions are left out, because
+#: they let the compiler round differently in different call sites, and a world must
+#: fly the same trajectory bit for bit whether it is simulated alone or in a batch.
+FAST_MATH_FLAGS = {"nnan", "ninf", "nsz"}
+
 # Layout of the float64 parameter vector shared by the NF and the kernel.
 P_K = 0  # exponent k of (2)
 P_EPS_NH = 1  # ε_nh of (3), in units of L²
@@ -71,7 +77,7 @@ LEFT = 2.0
 ABSENT = 3.0  # padding slot of a world with fewer aircraft than the batch's N
 
 
-@njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
 def proximity_bump(s: float, c: float) -> tuple[float, float]:
     """h(s) and h'(s) of the decentralized proximity function.
 
@@ -92,7 +98,7 @@ def proximity_bump(s: float, c: float) -> tuple[float, float]:
     return w * (2.0 - w), 2.0 * (1.0 - w) * dw
 
 
-@njit(cache=True, fastmath=True, error_model="numpy")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def nf_value_and_gradients(
     i: int,
     pos: np.ndarray,
@@ -110,7 +116,7 @@ def nf_value_and_gradients(
     return phi
 
 
-@njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
 def nf_along_direction(
     i: int,
     pos: np.ndarray,
@@ -248,7 +254,7 @@ def nf_along_direction(
     return phi, n_near
 
 
-@njit(cache=True, fastmath=True, error_model="numpy")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def proximity_function(i: int, pos: np.ndarray, status: np.ndarray, params: np.ndarray) -> float:
     """G_i alone (dimensionless, in [0, 1]); for tests and diagnostics."""
     inv_len = 1.0 / params[P_LENGTH]
