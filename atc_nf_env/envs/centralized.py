@@ -216,7 +216,7 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
     their decentralized dipolar navigation functions (NF) with a hidden constant wind,
     and every T = 5 min the agent chooses each aircraft's intermediate waypoint (Roussos,
     Chaloulos, Kyriakopoulos, Lygeros, CDC 2008). One ``step`` flies one 300 s decision
-    period through the batched kernel (Euler, dt = 5 s). Units: nm, kt, s.
+    period through the batched kernel (Adams-Bashforth 2, dt = 5 s). Units: nm, kt, s.
 
     ## Action Space
 

@@ -26,7 +26,7 @@ class ATCParallelEnv(ParallelEnv):
     navigation function (NF) with a hidden constant wind, and every T = 5 min each agent
     chooses its own intermediate waypoint (Roussos, Chaloulos, Kyriakopoulos, Lygeros,
     CDC 2008). One ``step`` flies one 300 s decision period through the batched kernel
-    (Euler, dt = 5 s). Units: nm, kt, s.
+    (Adams-Bashforth 2, dt = 5 s). Units: nm, kt, s.
 
     ## Action Space
 
