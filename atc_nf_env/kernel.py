@@ -218,6 +218,8 @@ def _advance_world(
     nm_per_kt_step = dt / SECONDS_PER_HOUR
     pos = state[:, S_X : S_Y + 1]
     status = state[:, S_STATUS]
+    nf_consts = nf.nf_constants(params)
+    inv_dt = 1.0 / dt
 
     _assign_waypoints(state, waypoints)
     for i in range(n):
@@ -255,7 +257,7 @@ def _advance_world(
             theta_d = state[i, S_THETA_D]
             cos_d = state[i, S_COS_D]
             sin_d = state[i, S_SIN_D]
-            _, n_near = nf.nf_along_direction(i, pos, status, wx, wy, cos_d, sin_d, params, grad[i])
+            _, n_near = nf.nf_along_direction(i, pos, status, wx, wy, cos_d, sin_d, nf_consts, grad[i])
             command[i, C_NEAR] = n_near
             gx = grad[i, i, 0]
             gy = grad[i, i, 1]
@@ -278,7 +280,7 @@ def _advance_world(
             if state[i, S_FRESH] == 0.0:
                 jump = _wrap(theta_nh - state[i, S_THETA_NH])
                 if abs(jump) <= _HALF_PI:  # guard 5
-                    theta_nh_rate = jump / dt
+                    theta_nh_rate = jump * inv_dt
             command[i, C_U_FEEDBACK] = -sgn_p * f_speed
             command[i, C_OMEGA] = -k_theta * _wrap(heading - theta_nh) + theta_nh_rate  # guard 4
             command[i, C_THETA_NH] = theta_nh

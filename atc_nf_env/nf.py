@@ -111,9 +111,45 @@ def nf_value_and_gradients(
 ) -> float:
     """Φ_i and ∇_jΦ_i for every j; see ``nf_along_direction`` (θ_d given as an angle, rad)."""
     phi, _ = nf_along_direction(
-        i, pos, status, waypoint_x, waypoint_y, math.cos(theta_d), math.sin(theta_d), params, grad_out
+        i,
+        pos,
+        status,
+        waypoint_x,
+        waypoint_y,
+        math.cos(theta_d),
+        math.sin(theta_d),
+        nf_constants(params),
+        grad_out,
     )
     return phi
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def nf_constants(params: np.ndarray) -> tuple:
+    """The NF's constants derived from the parameter vector, computed once per kernel
+    call instead of once per aircraft and step (a tuple, to stay allocation-free):
+    (1/L, k, 1/k, r_world² − r², (2r)², 1/β_s, c of the barrier, R_s², ε_nh, a0, X),
+    lengths in units of L."""
+    inv_len = 1.0 / params[P_LENGTH]
+    radius = params[P_RADIUS] * inv_len
+    r_world = params[P_R_WORLD] * inv_len
+    r_sense = params[P_R_SENSE] * inv_len
+    barrier = params[P_BARRIER] * inv_len
+    contact2 = 4.0 * radius * radius
+    beta_s = r_sense * r_sense - contact2
+    return (
+        inv_len,
+        params[P_K],
+        1.0 / params[P_K],
+        r_world * r_world - radius * radius,
+        contact2,
+        1.0 / beta_s,
+        (barrier * barrier - contact2) / beta_s,
+        r_sense * r_sense,
+        params[P_EPS_NH],
+        params[P_A0],
+        params[P_X],
+    )
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
@@ -125,7 +161,7 @@ def nf_along_direction(
     waypoint_y: float,
     ed_x: float,
     ed_y: float,
-    params: np.ndarray,
+    constants: tuple,
     grad_out: np.ndarray,
 ) -> tuple[float, int]:
     """Φ_i and its closed-form gradients with respect to every aircraft's position.
@@ -136,7 +172,7 @@ def nf_along_direction(
         status: status of each aircraft, shape (N,); only FLYING aircraft are obstacles.
         waypoint_x, waypoint_y: aircraft i's current waypoint q_d, nm.
         ed_x, ed_y: unit vector of the desired orientation θ_d at the waypoint.
-        params: parameter vector (layout ``P_*`` of this module).
+        constants: ``nf_constants(params)``.
         grad_out: output, shape (N, 2): row j receives ∇_jΦ_i (row i: ∇_iΦ_i), with
             respect to positions in units of L; rows of non-neighbours are zero.
 
@@ -144,11 +180,7 @@ def nf_along_direction(
         (Φ_i, dimensionless in [0, 1]; the number of neighbours within the sensing radius).
     """
     n = pos.shape[0]
-    inv_len = 1.0 / params[P_LENGTH]
-    k = params[P_K]
-    radius = params[P_RADIUS] * inv_len
-    r_world = params[P_R_WORLD] * inv_len
-    r_sense = params[P_R_SENSE] * inv_len
+    (inv_len, k, inv_k, beta0_max, contact2, inv_beta_s, c_bar, r_sense2, eps_nh, a0, x_cut) = constants
     xi = pos[i, 0] * inv_len
     yi = pos[i, 1] * inv_len
     dx = (pos[i, 0] - waypoint_x) * inv_len
@@ -156,15 +188,10 @@ def nf_along_direction(
 
     gamma = dx * dx + dy * dy
     p_axis = ed_x * dx + ed_y * dy
-    h_nh = params[P_EPS_NH] + p_axis * p_axis
-    beta0 = r_world * r_world - (xi * xi + yi * yi) - radius * radius
+    h_nh = eps_nh + p_axis * p_axis
+    beta0 = beta0_max - (xi * xi + yi * yi)
 
     # G_i = Π h(s_ij) and, in grad_out's neighbour rows, Π_{k≠j} h_k · h'_j · ∇_j s_ij.
-    contact = 2.0 * radius
-    beta_s = r_sense * r_sense - contact * contact
-    barrier = params[P_BARRIER] * inv_len
-    c_bar = (barrier * barrier - contact * contact) / beta_s
-    r_sense2 = r_sense * r_sense
     g_prox = 1.0
     n_near = 0
     for j in range(n):
@@ -179,11 +206,11 @@ def nf_along_direction(
         if dist2 >= r_sense2:
             continue  # beyond the sensing radius: h = 1, h' = 0
         n_near += 1
-        h, dh = proximity_bump((dist2 - contact * contact) / beta_s, c_bar)
+        h, dh = proximity_bump((dist2 - contact2) * inv_beta_s, c_bar)
         g_prox *= h
         # h'_j ∇_j s_ij, with ∇_j s_ij = −2 (q_i − q_j) / β_s.
-        grad_out[j, 0] = -2.0 * rx / beta_s * dh
-        grad_out[j, 1] = -2.0 * ry / beta_s * dh
+        grad_out[j, 0] = -2.0 * rx * inv_beta_s * dh
+        grad_out[j, 1] = -2.0 * ry * inv_beta_s * dh
     # ∇_j G_i = Π_{k≠j} h_k · h'_j ∇_j s_ij. A neighbour with h'_j ≠ 0 has h_j > 0, so
     # Π_{k≠j} h_k = G_i / h_j (zero when another neighbour touches, as it must be).
     grad_g_ix = 0.0
@@ -194,7 +221,7 @@ def nf_along_direction(
                 continue
             rx = xi - pos[j, 0] * inv_len
             ry = yi - pos[j, 1] * inv_len
-            h, _ = proximity_bump((rx * rx + ry * ry - contact * contact) / beta_s, c_bar)
+            h, _ = proximity_bump((rx * rx + ry * ry - contact2) * inv_beta_s, c_bar)
             others = g_prox / h
             grad_out[j, 0] *= others
             grad_out[j, 1] *= others
@@ -206,8 +233,6 @@ def nf_along_direction(
             grad_out[j, 1] = 0.0
 
     # f_i(G_i) and f_i'(G_i).
-    a0 = params[P_A0]
-    x_cut = params[P_X]
     if g_prox < x_cut:
         g_rel = g_prox / x_cut
         f = a0 * (1.0 - 3.0 * g_rel * g_rel + 2.0 * g_rel * g_rel * g_rel)
@@ -226,11 +251,11 @@ def nf_along_direction(
     if k == 2.0:
         d_root = math.sqrt(d)
     else:
-        d_root = d ** (1.0 / k)
+        d_root = d**inv_k
     phi = a / d_root
     # dΦ = D^(−1/k−1) [M dA − (A/k)(G β0 dH + H β0 dG + H G dβ0)], dA = dγ + f' dG.
     scale = 1.0 / (d_root * d)
-    a_over_k = a / k
+    a_over_k = a * inv_k
     coef_g = scale * (m * df - a_over_k * h_nh * beta0)
     coef_gamma = scale * m
     coef_h = -scale * a_over_k * g_prox * beta0
@@ -257,19 +282,15 @@ def nf_along_direction(
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def proximity_function(i: int, pos: np.ndarray, status: np.ndarray, params: np.ndarray) -> float:
     """G_i alone (dimensionless, in [0, 1]); for tests and diagnostics."""
-    inv_len = 1.0 / params[P_LENGTH]
-    radius = params[P_RADIUS] * inv_len
-    r_sense = params[P_R_SENSE] * inv_len
-    contact = 2.0 * radius
-    beta_s = r_sense * r_sense - contact * contact
-    barrier = params[P_BARRIER] * inv_len
-    c_bar = (barrier * barrier - contact * contact) / beta_s
+    inv_len, _, _, _, contact2, inv_beta_s, c_bar, r_sense2, _, _, _ = nf_constants(params)
     g = 1.0
     for j in range(pos.shape[0]):
         if j == i or status[j] != FLYING:
             continue
         rx = (pos[i, 0] - pos[j, 0]) * inv_len
         ry = (pos[i, 1] - pos[j, 1]) * inv_len
-        h, _ = proximity_bump((rx * rx + ry * ry - contact * contact) / beta_s, c_bar)
-        g *= h
+        dist2 = rx * rx + ry * ry
+        if dist2 < r_sense2:
+            h, _ = proximity_bump((dist2 - contact2) * inv_beta_s, c_bar)
+            g *= h
     return g
