@@ -131,6 +131,17 @@ class ScenarioSource:
     def workspace_radius_nm(self) -> float:
         return self.template.workspace_radius_nm
 
+    def slots(self, max_aircraft: int | None, where: str) -> int:
+        """Aircraft slots of a world: the scenario's aircraft, or ``max_aircraft`` to pad."""
+        n = self.n_aircraft
+        n_slots = n if max_aircraft is None else int(max_aircraft)
+        if n_slots < n:
+            raise ValueError(
+                f"{where}: max_aircraft = {max_aircraft} is smaller than the scenario's {n} aircraft; "
+                f"use max_aircraft >= {n} (or None)"
+            )
+        return n_slots
+
     def scenario(self, episode_seed: int) -> Scenario:
         """The scenario of the episode with this seed (a new draw for random-N)."""
         if self.random_n is None:

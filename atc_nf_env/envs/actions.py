@@ -27,6 +27,7 @@ from typing import Any, Mapping
 import numpy as np
 from numba import njit
 
+from atc_nf_env.envs.coerce import coerce_settings
 from atc_nf_env.kernel import FLYING, S_DEST_X, S_DEST_Y, S_STATUS, S_WP_X, S_WP_Y, S_X, S_Y
 
 #: Distance kept between a clamped waypoint and the edge of the allowed disk, nm.
@@ -74,21 +75,8 @@ class ActionMapping:
 
     @classmethod
     def coerce(cls, value: "ActionMapping | Mapping[str, Any] | None") -> "ActionMapping":
-        """An ActionMapping from itself, a dict of its fields, or None (the defaults)."""
-        if value is None:
-            return cls()
-        if isinstance(value, cls):
-            return value
-        if isinstance(value, Mapping):
-            allowed = [f.name for f in fields(cls)]
-            unknown = sorted(set(value) - set(allowed))
-            if unknown:
-                raise ValueError(f"action_mapping: unknown fields {unknown}; allowed: {allowed}")
-            return cls(**value)
-        raise ValueError(
-            f"action_mapping = {value!r}: must be an ActionMapping or a dict with fields "
-            f"{[f.name for f in fields(cls)]}"
-        )
+        """An ActionMapping from itself, a dict of (some of) its fields, or None (the defaults)."""
+        return coerce_settings(cls, value, "action_mapping")
 
 
 DEFAULT_MAPPING = ActionMapping()

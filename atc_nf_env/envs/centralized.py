@@ -46,13 +46,7 @@ class EncounterWorld:
     def __init__(self, cfg: EnvConfig, where: str) -> None:
         self.cfg = cfg
         self.source = ScenarioSource(cfg.scenario)
-        n = self.source.n_aircraft
-        self.n_slots = n if cfg.max_aircraft is None else int(cfg.max_aircraft)
-        if self.n_slots < n:
-            raise ValueError(
-                f"{where}: max_aircraft = {cfg.max_aircraft} is smaller than the scenario's {n} aircraft; "
-                f"use max_aircraft >= {n} (or None)"
-            )
+        self.n_slots = self.source.slots(cfg.max_aircraft, where)
         self.obs_spec = ObservationSpec.for_config(cfg.config, cfg.n_neighbours, cfg.expose_wind)
         self.record_every = RENDER_RECORD_EVERY if cfg.render_mode is not None else 0
         self.sim: Simulation | None = None

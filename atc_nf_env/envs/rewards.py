@@ -22,6 +22,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from atc_nf_env.envs.coerce import coerce_settings
 from atc_nf_env.kernel import Trace
 
 
@@ -62,21 +63,8 @@ class RewardWeights:
 
     @classmethod
     def coerce(cls, value: "RewardWeights | Mapping[str, Any] | None") -> "RewardWeights":
-        """RewardWeights from itself, a dict of (some of) its fields, or None (the defaults)."""
-        if value is None:
-            return cls()
-        if isinstance(value, cls):
-            return value
-        if isinstance(value, Mapping):
-            allowed = [f.name for f in fields(cls)]
-            unknown = sorted(set(value) - set(allowed))
-            if unknown:
-                raise ValueError(f"reward_weights: unknown fields {unknown}; allowed: {allowed}")
-            return cls(**value)
-        raise ValueError(
-            f"reward_weights = {value!r}: must be a RewardWeights or a dict with fields "
-            f"{[f.name for f in fields(cls)]}"
-        )
+        """A RewardWeights from itself, a dict of (some of) its fields, or None (the defaults)."""
+        return coerce_settings(cls, value, "reward_weights")
 
 
 @dataclass

@@ -64,13 +64,7 @@ class BatchWorlds:
         self.cfg = cfg
         self.num_envs = int(num_envs)
         self.source = ScenarioSource(cfg.scenario)
-        n = self.source.n_aircraft
-        self.n_slots = n if cfg.max_aircraft is None else int(cfg.max_aircraft)
-        if self.n_slots < n:
-            raise ValueError(
-                f"{where}: max_aircraft = {cfg.max_aircraft} is smaller than the scenario's {n} aircraft; "
-                f"use max_aircraft >= {n} (or None)"
-            )
+        self.n_slots = self.source.slots(cfg.max_aircraft, where)
         self.obs_spec = ObservationSpec.for_config(cfg.config, cfg.n_neighbours, cfg.expose_wind)
         self.params = cfg.config.to_params(self.source.workspace_radius_nm)
         b, m = self.num_envs, self.n_slots
