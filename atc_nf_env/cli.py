@@ -50,7 +50,11 @@ def _policy_kwargs(args: argparse.Namespace) -> dict:
 
 
 def _add_episode_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--policy", default="nf", help=f"the policy: {', '.join(BUILTIN_POLICIES)}")
+    parser.add_argument(
+        "--policy",
+        default="nf",
+        help=f"the policy: {', '.join(BUILTIN_POLICIES)}, or a trained agent's PATH.zip (agents/models/*.zip)",
+    )
     parser.add_argument(
         "--scenario",
         default="converging-4",
@@ -99,7 +103,8 @@ def _fly(args: argparse.Namespace) -> int:
     if args.plots:
         from atc_nf_env.plotting import write_episode_plots
 
-        paths = write_episode_plots(result, args.plots, f"{scenario.name}_{args.policy}")
+        label = Path(args.policy).stem if args.policy.lower().endswith(".zip") else args.policy
+        paths = write_episode_plots(result, args.plots, f"{scenario.name}_{label}")
         print("figures written: " + ", ".join(str(p) for p in paths))
     if args.animate:
         from atc_nf_env.rendering import save_animation
@@ -142,6 +147,22 @@ def _reproduce(args: argparse.Namespace) -> int:
     return reproduce.main(args.rest)
 
 
+def _train(args: argparse.Namespace) -> int:
+    from agents import train
+
+    return train.main(args.rest)
+
+
+def _imitate(args: argparse.Namespace) -> int:
+    from agents import imitate
+
+    return imitate.main(args.rest)
+
+
+#: Subcommands whose script owns its options (and its --help).
+_DELEGATED = {"reproduce": _reproduce, "train": _train, "imitate": _imitate}
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="atc-nf",
@@ -167,15 +188,22 @@ def build_parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("reproduce", help="the paper's figures and the reproduction table from fresh runs",
                          add_help=False)
     rep.set_defaults(handler=_reproduce)
+
+    tr = sub.add_parser("train", help="train a Stable-Baselines3 agent (PPO parameter-shared, or PPO/SAC centralized)",
+                        add_help=False)
+    tr.set_defaults(handler=_train)
+    im = sub.add_parser("imitate", help="imitate the MCMC-MPC: demonstrations, behaviour cloning, DAgger, "
+                        "PPO fine-tuning", add_help=False)
+    im.set_defaults(handler=_imitate)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] == "reproduce":
-        # The experiment owns its options (and its --help).
-        args = argparse.Namespace(command="reproduce", handler=_reproduce, rest=argv[1:])
+    if argv and argv[0] in _DELEGATED:
+        # The experiment or training script owns its options (and its --help).
+        args = argparse.Namespace(command=argv[0], handler=_DELEGATED[argv[0]], rest=argv[1:])
     else:
         args = parser.parse_args(argv)
     try:

@@ -37,7 +37,19 @@ BUILTIN_POLICIES = ("nf", "mpc")
 
 def make_policy(spec: str, **kwargs: Any) -> Policy:
     """A policy by name: ``nf`` (the NF alone), ``mpc`` (the MCMC-MPC; ``kwargs`` are
-    ``MPCSettings`` fields)."""
+    ``MPCSettings`` fields), or the path of a trained agent's ``.zip``
+    (``agents.policy.SB3AgentPolicy``; needs the ``rl`` extra)."""
+    if isinstance(spec, str) and spec.lower().endswith(".zip"):
+        if kwargs:
+            raise ValueError(f"a trained agent ({spec}) takes no settings, got {sorted(kwargs)}")
+        if not Path(spec).is_file():
+            raise ValueError(
+                f"policy {spec!r}: no such model file; give the path to a .zip saved by `atc-nf train` or "
+                "`atc-nf imitate` (shipped models: agents/models/*.zip)"
+            )
+        from agents.policy import SB3AgentPolicy
+
+        return SB3AgentPolicy(spec)
     if spec == "nf":
         if kwargs:
             raise ValueError(f"policy 'nf' takes no settings, got {sorted(kwargs)}")
@@ -48,7 +60,10 @@ def make_policy(spec: str, **kwargs: Any) -> Policy:
         from baselines import MCMCMPC
 
         return MCMCMPC(**kwargs)
-    raise ValueError(f"unknown policy {spec!r}; allowed: {', '.join(BUILTIN_POLICIES)}")
+    raise ValueError(
+        f"unknown policy {spec!r}; allowed: {', '.join(BUILTIN_POLICIES)}, or the path of a trained agent's "
+        ".zip (e.g. agents/models/<model>.zip)"
+    )
 
 
 @dataclass(frozen=True)

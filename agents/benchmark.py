@@ -1,0 +1,136 @@
+"""The agents against the MCMC-MPC and the NF alone, with the Monte Carlo evaluator.
+
+    python -m agents.benchmark --models agents/models/bc.zip,agents/models/dagger.zip --runs 200
+
+For every scenario and policy this runs ``atc_nf_env.evaluate.evaluate`` (the evaluator of
+``atc-nf evaluate``) on the held-out seeds 0..RUNS-1 (training used 10 000 and up, the
+imitation's quick checks 5 000..), keeps each study's runs in ``--out`` (JSON lines,
+resumable: a rerun only flies what is missing), and writes the summaries (``--summary``)
+and the markdown table (``--table``); ``agents/results/`` holds those of ``agents/README.md``.
+
+``--reuse-mpc DIR`` copies the MPC runs of the same seeds from an earlier study of the
+same scenario (``atc-nf reproduce`` keeps its 1000-run studies of converging-4 and
+converging-6 in ``out/reproduction``) instead of flying them again: the same study (policy,
+settings, wind, time limit), the same seeds, hence the same runs; only the airspeed
+series that the reproduction also recorded are dropped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+from atc_nf_env.evaluate import Study, evaluate, read_results
+
+SCENARIOS = "converging-4,converging-6,random-4"
+
+
+def label_of(policy: str) -> str:
+    return Path(policy).stem if policy.endswith(".zip") else policy
+
+
+def reuse_mpc_runs(study: Study, runs: int, source_dir: Path, target: Path) -> int:
+    """Copy the MPC runs of seeds 0..runs-1 of ``study`` from ``source_dir`` into ``target``
+    (a new results file); returns how many were copied."""
+    if target.exists():
+        return 0
+    header = study.header()
+    for path in sorted(source_dir.glob("*.jsonl")):
+        old, records = read_results(path)
+        if old is None:
+            continue
+        if any(old.get(k) != header[k] for k in header if k != "airspeed_every_s"):
+            continue
+        chosen = sorted((r for r in records if r["seed"] < runs), key=lambda r: r["seed"])
+        if not chosen:
+            continue
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with target.open("w") as handle:
+            handle.write(json.dumps(header) + "\n")
+            for record in chosen:
+                record = {k: v for k, v in record.items() if k != "airspeed_series_kt"}
+                handle.write(json.dumps(record) + "\n")
+        return len(chosen)
+    return 0
+
+
+def run(models: list[str], scenarios: list[str], runs: int, mpc_runs: int, out: Path, reuse_mpc: Path | None,
+        workers: int | None, progress: bool) -> dict[str, Any]:
+    results: dict[str, Any] = {}
+    for scenario in scenarios:
+        results[scenario] = {}
+        for policy in ["nf", "mpc", *models]:
+            n = mpc_runs if policy == "mpc" else runs
+            study = Study(policy=policy, scenario=scenario)
+            path = out / scenario / f"{label_of(policy)}.jsonl"
+            if policy == "mpc" and reuse_mpc is not None:
+                copied = reuse_mpc_runs(study, n, reuse_mpc, path)
+                if copied:
+                    print(f"{scenario}: {copied} MPC runs copied from {reuse_mpc}", file=sys.stderr)
+            print(f"{scenario}: {policy} x {n}", file=sys.stderr)
+            summary = evaluate(study, n, out=path, resume=path.exists(), workers=workers, progress=progress)
+            results[scenario][label_of(policy)] = summary
+    return results
+
+
+def _fmt_latency(seconds: float) -> str:
+    if seconds >= 1e-3:
+        return f"{seconds * 1e3:.1f} ms"
+    return f"{seconds * 1e6:.0f} µs"
+
+
+def table(results: dict[str, Any]) -> str:
+    """The markdown comparison table."""
+    lines = [
+        "| scenario | policy | runs | success | LoS (runs with LoS) | envelope held (% of steps) | "
+        "mean flight time (min) | decision latency | MPC latency / agent's |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for scenario, by_policy in results.items():
+        mpc = by_policy.get("mpc", {}).get("wall_s_per_decision")
+        for label, s in by_policy.items():
+            latency = s["wall_s_per_decision"]
+            ratio = f"{mpc / latency:,.0f}×" if mpc and latency and label != "mpc" else "1×" if label == "mpc" else ""
+            flight = s["flight_time_min"]["mean"]
+            lines.append(
+                f"| {scenario} | {label} | {s['runs']} | {100 * s['success_rate']:.1f} % | "
+                f"{s['los_count']} ({s['runs_with_los']}) | {100 * (1 - s['envelope_violation_fraction']):.2f} | "
+                f"{'n/a' if flight is None else f'{flight:.1f}'} | {_fmt_latency(latency)} | {ratio} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("--models", default="", help="comma-separated model .zip files")
+    parser.add_argument("--scenarios", default=SCENARIOS, help="comma-separated scenarios")
+    parser.add_argument("--runs", type=int, default=200, help="runs per study (seeds 0..RUNS-1)")
+    parser.add_argument("--mpc-runs", type=int, help="runs of the MPC's studies (default --runs)")
+    parser.add_argument("--out", type=Path, default=Path("out/agents"), help="folder of the studies' runs")
+    parser.add_argument("--reuse-mpc", type=Path, help="folder of earlier MPC studies to copy runs from")
+    parser.add_argument("--summary", type=Path, default=Path("out/agents/summary.json"), help="summaries (JSON)")
+    parser.add_argument("--table", type=Path, default=Path("out/agents/table.md"), help="the markdown table")
+    parser.add_argument("--workers", type=int, help="worker processes (default: all cores)")
+    parser.add_argument("--no-progress", action="store_true")
+    args = parser.parse_args(argv)
+    models = [m for m in args.models.split(",") if m]
+    for model in models:
+        if not Path(model).is_file():
+            parser.error(f"--models: {model} does not exist")
+    results = run(models, [s for s in args.scenarios.split(",") if s], args.runs, args.mpc_runs or args.runs,
+                  args.out, args.reuse_mpc, args.workers, not args.no_progress)
+    args.summary.parent.mkdir(parents=True, exist_ok=True)
+    args.summary.write_text(json.dumps(results, indent=2) + "\n")
+    text = table(results)
+    args.table.parent.mkdir(parents=True, exist_ok=True)
+    args.table.write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

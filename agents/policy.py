@@ -1,0 +1,333 @@
+"""A trained Stable-Baselines3 model as a policy of the ``atc_nf_env.policy.Policy`` interface.
+
+``SB3AgentPolicy("agents/models/x.zip")`` flies any model that ``atc-nf train`` or
+``atc-nf imitate`` saved, so the evaluator treats it exactly like the MPC and the NF
+alone (``atc-nf evaluate --policy agents/models/x.zip``). At every decision it
+
+1. builds the observation of every aircraft from the kernel state (``view.state``) with
+   the environments' own code (``ObservationSpec.observe``, the same compiled function
+   the PettingZoo, Gymnasium and vector envs call; the wind is never observed);
+2. runs the policy network for the aircraft still flying, deterministically: one
+   parameter-shared network applied to each aircraft's ego observation (``mode
+   "shared"``), or one network over the concatenated observations of all aircraft slots
+   (``mode "centralized"``);
+3. maps the actions to waypoints with the environments' action mapping
+   (``atc_nf_env.envs.actions.waypoints_for_state``, the function the envs call).
+
+Decision latency. SB3's ``predict`` costs ~100 µs of Python and torch overhead per
+call, more than the network itself. For the MLP policies our scripts train (PPO's
+``ActorCriticPolicy``, SAC's ``Actor``) the deterministic action is computed here with
+an explicit NumPy forward pass whose weights are read from the SB3 policy: PPO's action
+is the Gaussian's mean ``action_net(policy_net(obs))`` clipped to [-1, 1] (what
+``predict(deterministic=True)`` returns); SAC's is ``tanh(mu(latent_pi(obs)))``.
+``tests/test_agents.py`` checks both against SB3's ``predict``. Any other policy
+architecture falls back to ``predict`` (``fast=False`` forces it).
+
+Model metadata. Our scripts save, inside the model's zip (SB3's ``include``), an
+``atc_nf_meta`` dict: the algorithm, the mode, and the environment settings the model
+was trained with (observation neighbours K, time limit, action mapping, number of slots
+for centralized models), plus how it was trained. A zip without it is read as a
+parameter-shared PPO model on the default environment settings.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from atc_nf_env.config import SimConfig
+from atc_nf_env.envs import EnvConfig
+from atc_nf_env.envs.actions import ActionMapping, waypoints_for_state
+from atc_nf_env.envs.observations import ObservationSpec
+from atc_nf_env.scenarios import Scenario
+from atc_nf_env.simulation import WorldView
+from atc_nf_env.units import DECISION_PERIOD_S
+
+#: Key of the metadata saved inside a model's zip.
+META_KEY = "atc_nf_meta"
+ALGOS = ("ppo", "sac")
+MODES = ("shared", "centralized")
+
+
+def default_meta() -> dict[str, Any]:
+    """Metadata assumed for a zip saved without ``atc_nf_meta``."""
+    return {
+        "algo": "ppo",
+        "mode": "shared",
+        "env": {
+            "n_neighbours": EnvConfig().n_neighbours,
+            "max_episode_minutes": EnvConfig().max_episode_minutes,
+            "expose_wind": False,
+            "action_mapping": ActionMapping().as_dict(),
+            "max_aircraft": None,
+        },
+    }
+
+
+def env_meta(cfg: EnvConfig, n_slots: int | None = None) -> dict[str, Any]:
+    """The ``env`` part of the metadata for a model trained on environments built with ``cfg``."""
+    return {
+        "n_neighbours": int(cfg.n_neighbours),
+        "max_episode_minutes": float(cfg.max_episode_minutes),
+        "expose_wind": bool(cfg.expose_wind),
+        "action_mapping": cfg.action_mapping.as_dict(),
+        "max_aircraft": None if n_slots is None else int(n_slots),
+    }
+
+
+def read_meta(path: str | Path) -> dict[str, Any]:
+    """The ``atc_nf_meta`` of a saved model (``default_meta()`` where it has none)."""
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    data, _, _ = load_from_zip_file(str(path), device="cpu", load_data=True, print_system_info=False)
+    meta = default_meta()
+    saved = (data or {}).get(META_KEY)
+    if isinstance(saved, dict):
+        env = {**meta["env"], **saved.get("env", {})}
+        meta = {**meta, **saved, "env": env}
+    return meta
+
+
+#: Models loaded in this process, by (resolved path, modification time, size): the evaluator
+#: builds a policy per run, and loading a zip costs more than flying an episode.
+_LOADED: dict[tuple[str, int, int], tuple[Any, dict[str, Any]]] = {}
+
+
+def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
+    """(SB3 model on the CPU, metadata) of a zip saved by ``atc-nf train`` or ``atc-nf imitate``
+    (cached per process until the file changes; do not modify the returned model).
+
+    Raises:
+        ValueError: the file does not exist or is not an SB3 model of a known algorithm.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"model file {str(path)!r} does not exist; give the path to a .zip saved by "
+                         "`atc-nf train` or `atc-nf imitate` (shipped models: agents/models/*.zip)")
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+    if key not in _LOADED:
+        _LOADED[key] = _load_model(path)
+    return _LOADED[key]
+
+
+def _load_model(path: Path) -> tuple[Any, dict[str, Any]]:
+    try:
+        meta = read_meta(path)
+    except ImportError as error:  # pragma: no cover - depends on the install
+        raise ImportError("trained agents need stable-baselines3: pip install 'atc-nf-env[rl]'") from error
+    except Exception as error:  # a damaged or foreign zip
+        raise ValueError(f"{path}: not a Stable-Baselines3 model ({error})") from None
+    algo = meta.get("algo", "ppo")
+    if algo not in ALGOS:
+        raise ValueError(f"{path}: algorithm {algo!r} in its metadata; allowed: {', '.join(ALGOS)}")
+    if meta.get("mode") not in MODES:
+        raise ValueError(f"{path}: mode {meta.get('mode')!r} in its metadata; allowed: {', '.join(MODES)}")
+    from stable_baselines3 import PPO, SAC
+
+    cls = PPO if algo == "ppo" else SAC
+    model = cls.load(str(path), device="cpu")
+    return model, meta
+
+
+# ------------------------------------------------------------------ NumPy forward pass
+
+
+def _activation(module: Any) -> Callable[[np.ndarray], np.ndarray]:
+    import torch.nn as nn
+
+    if isinstance(module, nn.Tanh):
+        return lambda x: np.tanh(x, out=x)
+    if isinstance(module, nn.ReLU):
+        return lambda x: np.maximum(x, 0.0, out=x)
+    raise TypeError(f"activation {type(module).__name__} has no NumPy form here")
+
+
+def _mlp_layers(sequential: Any) -> list[tuple[np.ndarray, np.ndarray, Callable | None]]:
+    """[(W^T, b, activation or None)] of an nn.Sequential of Linear and activation modules."""
+    import torch.nn as nn
+
+    layers: list[tuple[np.ndarray, np.ndarray, Callable | None]] = []
+    for module in sequential:
+        if isinstance(module, nn.Linear):
+            weight = np.ascontiguousarray(module.weight.detach().cpu().numpy().astype(np.float32).T)
+            bias = module.bias.detach().cpu().numpy().astype(np.float32).copy()
+            layers.append((weight, bias, None))
+        else:
+            if not layers or layers[-1][2] is not None:
+                raise TypeError(f"unexpected module {type(module).__name__} in the policy network")
+            weight, bias, _ = layers[-1]
+            layers[-1] = (weight, bias, _activation(module))
+    return layers
+
+
+def numpy_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
+    """A function obs (B, D) -> deterministic actions (B, A) in [-1, 1] that reproduces
+    ``model.predict(obs, deterministic=True)`` with NumPy, or None if the model's policy is
+    not one of the MLP policies handled here."""
+    from stable_baselines3.common.torch_layers import FlattenExtractor
+
+    try:
+        from stable_baselines3.common.policies import ActorCriticPolicy
+        from stable_baselines3.sac.policies import SACPolicy
+
+        policy = model.policy
+        if isinstance(policy, ActorCriticPolicy):
+            if not isinstance(policy.features_extractor, FlattenExtractor) or policy.squash_output:
+                return None
+            from stable_baselines3.common.distributions import DiagGaussianDistribution
+
+            if not isinstance(policy.action_dist, DiagGaussianDistribution):
+                return None
+            layers = _mlp_layers(policy.mlp_extractor.policy_net) + _mlp_layers([policy.action_net])
+            squash = False
+        elif isinstance(policy, SACPolicy):
+            actor = policy.actor
+            if not isinstance(actor.features_extractor, FlattenExtractor) or actor.use_sde:
+                return None
+            layers = _mlp_layers(actor.latent_pi) + _mlp_layers([actor.mu])
+            squash = True
+        else:
+            return None
+    except TypeError:
+        return None
+    low = model.action_space.low.reshape(-1).astype(np.float64)
+    high = model.action_space.high.reshape(-1).astype(np.float64)
+    if not (np.all(low == -1.0) and np.all(high == 1.0)):
+        return None  # our envs' actions are all in [-1, 1]; anything else goes through predict
+
+    def forward(obs: np.ndarray) -> np.ndarray:
+        # float32 like torch; in-place operations keep the per-decision cost at a few µs.
+        x = np.asarray(obs, dtype=np.float32)
+        for weight, bias, act in layers:
+            x = x @ weight
+            x += bias
+            if act is not None:
+                act(x)
+        if squash:
+            return np.tanh(x, out=x)
+        np.minimum(x, 1.0, out=x)
+        return np.maximum(x, -1.0, out=x)
+
+    return forward
+
+
+# ------------------------------------------------------------------ the policy
+
+
+def ego_observations(spec: ObservationSpec, view: WorldView, time_limit_s: float,
+                     n_slots: int | None = None) -> np.ndarray:
+    """Observations (N or n_slots, D) float32 of the aircraft of ``view``, computed by the
+    environments' own code (``ObservationSpec.observe``) with the time fraction of an
+    env whose time limit is ``time_limit_s``; the wind is never part of them."""
+    time_fraction = np.array([min(1.0, view.time_s / time_limit_s)])
+    return spec.observe(view.state[None], time_fraction, np.zeros((1, 2)), n_slots)[0]
+
+
+def time_limit_s(max_episode_minutes: float) -> float:
+    """The env's time limit, s, as its observations normalize time: ceil(minutes / 5) periods."""
+    return EnvConfig(max_episode_minutes=float(max_episode_minutes)).max_decisions * DECISION_PERIOD_S
+
+
+
+class SB3AgentPolicy:
+    """A model saved by ``atc-nf train`` / ``atc-nf imitate`` as a waypoint policy.
+
+    Args:
+        path: the model's .zip.
+        fast: use the NumPy forward pass where the architecture allows (see the module
+            docstring); False always calls SB3's ``predict(deterministic=True)``.
+
+    Units: waypoints in nm, like every policy of ``atc_nf_env.policy``.
+    """
+
+    def __init__(self, path: str | Path, fast: bool = True) -> None:
+        self.path = Path(path)
+        self.model, self.meta = load_model(self.path)
+        self.name = self.path.stem
+        env = self.meta["env"]
+        if env.get("expose_wind"):
+            raise ValueError(
+                f"{self.path}: the model was trained with expose_wind=True, but a policy never sees the wind; "
+                "train with expose_wind=False"
+            )
+        self.mode: str = self.meta["mode"]
+        self.mapping = ActionMapping.coerce(env.get("action_mapping"))
+        self.n_neighbours = int(env.get("n_neighbours", 4))
+        self.time_limit_s = time_limit_s(env.get("max_episode_minutes"))
+        obs_dim = int(np.prod(self.model.observation_space.shape))
+        per_aircraft = ObservationSpec(n_neighbours=self.n_neighbours).dim
+        if self.mode == "shared":
+            if obs_dim != per_aircraft or self.model.action_space.shape != (2,):
+                raise ValueError(
+                    f"{self.path}: observation size {obs_dim} and action shape {self.model.action_space.shape} do "
+                    f"not fit a parameter-shared model with K = {self.n_neighbours} neighbours ({per_aircraft}, (2,))"
+                )
+            self.n_slots: int | None = None
+        else:
+            slots = self.model.action_space.shape[0]
+            if obs_dim != slots * per_aircraft:
+                raise ValueError(f"{self.path}: observation size {obs_dim} is not {slots} slots x {per_aircraft}")
+            self.n_slots = int(slots)
+        self._forward = numpy_forward(self.model) if fast else None
+        self._spec: ObservationSpec | None = None
+        self._warm = False
+
+    # -- Policy interface -------------------------------------------------------------
+    def reset(self, scenario: Scenario, config: SimConfig, seed: int | None = None) -> None:
+        """Prepare the observation code for ``scenario`` flown with ``config`` (the policy is
+        deterministic: ``seed`` is unused)."""
+        if self.n_slots is not None and scenario.n_aircraft > self.n_slots:
+            raise ValueError(
+                f"{self.path}: a centralized model with {self.n_slots} aircraft slots cannot fly "
+                f"{scenario.name!r} ({scenario.n_aircraft} aircraft)"
+            )
+        self._spec = ObservationSpec.for_config(config, self.n_neighbours, False)
+        self._workspace_radius_nm = float(scenario.workspace_radius_nm)
+        self._aircraft_radius_nm = float(config.aircraft_radius_nm)
+        if not self._warm:  # load the compiled functions now, not inside the first timed act()
+            from atc_nf_env.simulation import initial_state
+
+            state = initial_state(scenario)[0]
+            self.act(WorldView(time_s=0.0, state=state, scenario=scenario))
+            self._warm = True
+
+    def observe(self, view: WorldView) -> np.ndarray:
+        """Observations (N or slots, D) float32 of every aircraft, as the envs compute them."""
+        if self._spec is None:
+            raise RuntimeError("call reset(scenario, config, seed) before act()")
+        return ego_observations(self._spec, view, self.time_limit_s, self.n_slots)
+
+    def actions(self, obs: np.ndarray) -> np.ndarray:
+        """Deterministic actions (B, 2) or (B, slots, 2) in [-1, 1] for observations (B, D)."""
+        if self._forward is not None:
+            return self._forward(obs)
+        action, _ = self.model.predict(obs, deterministic=True)
+        return np.asarray(action, dtype=np.float64)
+
+    def act(self, view: WorldView) -> np.ndarray:
+        """Waypoints (N, 2), nm: each flying aircraft's action mapped with the env's mapping;
+        aircraft no longer flying keep their waypoint."""
+        state = view.state
+        obs = self.observe(view)
+        n = state.shape[0]
+        if self.mode == "shared":
+            # One batch for all rows: cheaper than selecting the flying ones, and the rows of
+            # aircraft no longer flying are ignored by waypoints_for_state.
+            actions = self.actions(obs)[None]
+        else:
+            actions = self.actions(obs.reshape(1, -1)).reshape(1, self.n_slots, 2)[:, :n]
+        return waypoints_for_state(actions, state[None], self.mapping, self._workspace_radius_nm,
+                                   self._aircraft_radius_nm)[0]
+
+
+def is_model_path(spec: str) -> bool:
+    """Whether a ``--policy`` value names a model file rather than a built-in policy."""
+    return isinstance(spec, str) and spec.lower().endswith(".zip")
+
+
+__all__ = ["META_KEY", "SB3AgentPolicy", "default_meta", "env_meta", "is_model_path", "load_model", "numpy_forward",
+           "read_meta"]
+
