@@ -64,11 +64,12 @@ def windless(n: int, out: Path | None) -> tuple[dict[str, Any], EpisodeResult]:
 
 def windy(runs: int, out: Path | None) -> dict[str, Any]:
     scenario = converging(4)
-    failed_runs, stall_distances = 0, []
+    failed_runs, stall_distances, los_runs = 0, [], 0
     example = None
     for seed in range(runs):
         result = run_episode(NFDirect(), scenario, seed=seed, wind_sigma_mps=WIND_SIGMA_MPS, record_every=40)
         m = result.metrics
+        los_runs += m.los_count > 0
         if m.success:
             continue
         failed_runs += 1
@@ -86,6 +87,7 @@ def windy(runs: int, out: Path | None) -> dict[str, Any]:
         "runs_with_an_aircraft_that_never_arrives": failed_runs,
         "fraction_of_runs_failing": failed_runs / runs,
         "aircraft_never_arriving": len(stall_distances),
+        "runs_with_a_loss_of_separation": los_runs,
         "stall_distance_nm": {
             "min": min(stall_distances, default=None),
             "median": float(np.median(stall_distances)) if stall_distances else None,

@@ -141,6 +141,9 @@ def write_report(path: Path, results: dict[str, Any]) -> None:
         ("4 aircraft, NF alone, wind σ = 5.17 m/s: runs with an aircraft that never arrives", "some",
          f"{nfw['runs_with_an_aircraft_that_never_arrives']}/{nfw['runs']}, stranded a median "
          f"{_fmt(nfw['stall_distance_nm']['median'])} nm short", ""),
+        ("4 aircraft, NF alone, wind σ = 5.17 m/s: runs with a loss of separation", "-",
+         f"{nfw['runs_with_a_loss_of_separation']}/{nfw['runs']}",
+         "the NF's collision avoidance assumes the motion it commands; a wind it cannot see breaks it"),
     ]
     config = SimConfig()
     lines = [
