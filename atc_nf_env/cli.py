@@ -8,9 +8,10 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from atc_nf_env.episode import MAX_EPISODE_S, run_episode
-from atc_nf_env.evaluate import BACKENDS, BUILTIN_POLICIES, Study, evaluate, make_policy
+from atc_nf_env.episode import MAX_EPISODE_S, run_episode, warm_up
+from atc_nf_env.evaluate import BACKENDS, Study, evaluate
 from atc_nf_env.metrics import format_run, peak_rss_mb, summarize
+from atc_nf_env.policy import available_policies, make_policy
 from atc_nf_env.scenarios import make_scenario
 from atc_nf_env.units import WIND_SIGMA_MPS
 
@@ -29,16 +30,18 @@ def _positive_int(text: str) -> int:
 
 
 def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
+    # No argparse defaults here: an option left out is not passed, and the MPC keeps its
+    # own (the paper's), which the help text quotes.
     group = parser.add_argument_group("MCMC-MPC settings (policy mpc; defaults are the paper's)")
-    group.add_argument("--extractions", type=_positive_int, help="K, proposals per decision (1000)")
-    group.add_argument("--horizon", type=_positive_int, help="N, periods in the horizon (4)")
+    group.add_argument("--extractions", type=_positive_int, help="K, proposals per decision (default: 1000)")
+    group.add_argument("--horizon", type=_positive_int, help="N, periods in the horizon (default: 4)")
     group.add_argument("--wind-model", choices=("none", "sampled", "estimated"),
-                       help="the MPC's prediction wind (estimated)")
+                       help="the MPC's prediction wind (default: estimated)")
     group.add_argument("--constraint-check", choices=("every-step", "sampling-instants"),
-                       help="where the MPC checks the envelope and separation (every-step)")
+                       help="where the MPC checks the envelope and separation (default: every-step)")
     group.add_argument("--acceptance", choices=("standard", "table-i"),
-                       help="Metropolis-Hastings acceptance: standard, or as printed in Table I")
-    group.add_argument("--cost-exponent", type=float, help="J, the chain's target is C^-J (1)")
+                       help="Metropolis-Hastings acceptance: standard, or as printed in Table I (default: standard)")
+    group.add_argument("--cost-exponent", type=float, help="J, the chain's target is C^-J (default: 1)")
 
 
 def _policy_kwargs(args: argparse.Namespace) -> dict:
@@ -52,8 +55,9 @@ def _policy_kwargs(args: argparse.Namespace) -> dict:
 def _add_episode_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--policy",
-        default="nf",
-        help=f"the policy: {', '.join(BUILTIN_POLICIES)}, or a trained agent's PATH.zip (agents/models/*.zip)",
+        default="mpc",
+        help=f"the policy: {', '.join(available_policies())} (mpc: the paper's MCMC-MPC, the reference; nf: the "
+        "NF alone, which strands aircraft under wind), or a trained agent's PATH.zip (agents/models/*.zip)",
     )
     parser.add_argument(
         "--scenario",
@@ -64,7 +68,7 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
         "--wind-sigma",
         type=_non_negative_float,
         default=WIND_SIGMA_MPS,
-        help=f"standard deviation of each wind component, m/s (default {WIND_SIGMA_MPS})",
+        help="standard deviation of each wind component, m/s",
     )
     parser.add_argument("--seed", type=int, default=0, help="seeds the wind and the policy")
     parser.add_argument(
@@ -77,43 +81,63 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
     _add_mpc_options(parser)
 
 
+def _check_output_file(path: Path | None, option: str) -> None:
+    """Refuse a file whose folder does not exist, rather than create folders silently."""
+    if path is not None and not path.parent.is_dir():
+        raise ValueError(f"{option} {path}: the folder {path.parent} does not exist; create it first")
+
+
 def _fly(args: argparse.Namespace) -> int:
+    _check_output_file(args.summary_json, "--summary-json")
+    _check_output_file(args.animate, "--animate")
     scenario = make_scenario(args.scenario, seed=args.seed)
     policy = make_policy(args.policy, **_policy_kwargs(args))
+    record_every = 1 if (args.plots or args.animate) else 0
+    compile_s = warm_up(policy, scenario, seed=args.seed, wind_sigma_mps=args.wind_sigma,
+                        record_every=record_every)
     result = run_episode(
         policy,
         scenario,
         seed=args.seed,
         wind_sigma_mps=args.wind_sigma,
         max_time_s=args.max_minutes * 60.0,
-        record_every=1 if (args.plots or args.animate) else 0,
+        record_every=record_every,
     )
     print(format_run(result.metrics))
+    print(f"  warm-up before the timed episode (numba compile or cache load, first decision): {compile_s:.2f} s")
     info = policy.episode_info() if hasattr(policy, "episode_info") else {}
     if info:
         print("  policy: " + ", ".join(f"{key} {value}" for key, value in info.items()))
     if args.summary_json:
-        summary = summarize([result.metrics], peak_rss_mb=peak_rss_mb())
+        summary = summarize([result.metrics], peak_rss_mb=peak_rss_mb(), compile_s=compile_s)
         summary["policy"] = args.policy
+        info = dict(info)
+        if "fallbacks" in info:  # at the top level, as in evaluate's summary
+            summary["fallbacks"] = info.pop("fallbacks")
         summary["policy_info"] = info
         summary["run"] = result.metrics.to_dict()
-        args.summary_json.parent.mkdir(parents=True, exist_ok=True)
         args.summary_json.write_text(json.dumps(summary, indent=2) + "\n")
         print(f"summary written to {args.summary_json}")
+    label = Path(args.policy).stem if args.policy.lower().endswith(".zip") else args.policy
     if args.plots:
         from atc_nf_env.plotting import write_episode_plots
 
-        label = Path(args.policy).stem if args.policy.lower().endswith(".zip") else args.policy
-        paths = write_episode_plots(result, args.plots, f"{scenario.name}_{label}")
+        paths = write_episode_plots(result, args.plots, f"{scenario.name}_{label}", policy=label,
+                                    wind_sigma_mps=args.wind_sigma)
         print("figures written: " + ", ".join(str(p) for p in paths))
     if args.animate:
         from atc_nf_env.rendering import save_animation
 
-        print(f"animation written to {save_animation(result, args.animate, scenario=scenario)}")
+        from atc_nf_env.plotting import episode_title
+
+        title = episode_title(result, "", label, args.wind_sigma).rstrip(": ")
+        print(f"animation written to {save_animation(result, args.animate, scenario=scenario, title=title)}")
     return 0
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    _check_output_file(args.out, "--out")
+    _check_output_file(args.summary_json, "--summary-json")
     study = Study(
         policy=args.policy,
         scenario=args.scenario,
@@ -135,7 +159,6 @@ def _evaluate(args: argparse.Namespace) -> int:
     text = json.dumps(summary, indent=2)
     print(text)
     if args.summary_json:
-        args.summary_json.parent.mkdir(parents=True, exist_ok=True)
         args.summary_json.write_text(text + "\n")
         print(f"summary written to {args.summary_json}", file=sys.stderr)
     return 0
@@ -163,19 +186,31 @@ def _imitate(args: argparse.Namespace) -> int:
 _DELEGATED = {"reproduce": _reproduce, "train": _train, "imitate": _imitate}
 
 
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows every real default; an option without one (None, or off) says nothing."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None or action.default is False or "default" in (action.help or ""):
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="atc-nf",
         description="Aircraft under decentralized dipolar navigation functions with hidden wind.",
+        formatter_class=HelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    fly = sub.add_parser("fly", help="fly one episode and print its metrics")
+    fly = sub.add_parser("fly", help="fly one episode and print its metrics", formatter_class=HelpFormatter)
     _add_episode_options(fly)
-    fly.add_argument("--plots", type=Path, help="write trajectory and airspeed figures into this folder")
+    fly.add_argument("--plots", type=Path,
+                     help="write trajectory and airspeed figures into this folder (created if missing)")
     fly.add_argument("--animate", type=Path, help="write a GIF animation of the episode to this file")
     fly.set_defaults(handler=_fly)
 
-    ev = sub.add_parser("evaluate", help="a Monte Carlo study: many seeded episodes, in parallel, resumable")
+    ev = sub.add_parser("evaluate", help="a Monte Carlo study: many seeded episodes, in parallel, resumable",
+                        formatter_class=HelpFormatter)
     _add_episode_options(ev)
     ev.add_argument("--runs", type=_positive_int, default=100, help="number of episodes (seeds SEED..SEED+RUNS-1)")
     ev.add_argument("--workers", type=_positive_int, help="worker processes (default: all cores)")

@@ -42,6 +42,34 @@ def episode_wind_kt(seed: int | None, wind_sigma_mps: float) -> np.ndarray:
     return sample_wind_kt(rng, wind_sigma_mps)
 
 
+def warm_up(
+    policy: Policy,
+    scenario: Scenario,
+    *,
+    seed: int | None = 0,
+    wind_sigma_mps: float = WIND_SIGMA_MPS,
+    config: SimConfig | None = None,
+    record_every: int = 0,
+) -> float:
+    """Fly one decision period of ``scenario`` untimed, so that numba has compiled (or
+    loaded from its cache) the kernel and the policy has made its first decision before
+    anything is timed; returns the seconds it took (the ``compile_s`` of reports).
+
+    The policy is reset by the next ``run_episode``, so the warm-up changes no result.
+    """
+    start = time.perf_counter()
+    run_episode(
+        policy,
+        scenario,
+        seed=seed,
+        wind_sigma_mps=wind_sigma_mps,
+        config=config,
+        max_time_s=DECISION_PERIOD_S,
+        record_every=record_every,
+    )
+    return time.perf_counter() - start
+
+
 def run_episode(
     policy: Policy,
     scenario: Scenario,

@@ -10,7 +10,8 @@ with ``resume=True`` loses nothing and repeats nothing.
 File format: the first line is a header naming the study (policy, scenario, wind,
 settings); every other line is one run's metrics (``RunMetrics.to_dict()``) with the
 policy's diagnostics under ``policy_info`` and the worker's peak memory under
-``peak_rss_mb``.
+``peak_rss_mb`` and, for the process's first run of the study, the untimed warm-up
+before it under ``compile_s`` (0 for later runs).
 """
 
 from __future__ import annotations
@@ -25,45 +26,13 @@ from typing import Any, Callable, Iterable, Iterator
 
 from atc_nf_env import kernel
 from atc_nf_env.config import SimConfig
-from atc_nf_env.episode import MAX_EPISODE_S, run_episode
+from atc_nf_env.episode import MAX_EPISODE_S, run_episode, warm_up
 from atc_nf_env.metrics import RunMetrics, peak_rss_mb, summarize
-from atc_nf_env.policy import Policy
+from atc_nf_env.policy import make_policy  # noqa: F401  (re-exported: the evaluator resolves policies by name)
 from atc_nf_env.scenarios import make_scenario
 from atc_nf_env.units import WIND_SIGMA_MPS
 
 BACKENDS = ("local", "ray")
-BUILTIN_POLICIES = ("nf", "mpc")
-
-
-def make_policy(spec: str, **kwargs: Any) -> Policy:
-    """A policy by name: ``nf`` (the NF alone), ``mpc`` (the MCMC-MPC; ``kwargs`` are
-    ``MPCSettings`` fields), or the path of a trained agent's ``.zip``
-    (``agents.policy.SB3AgentPolicy``; needs the ``rl`` extra)."""
-    if isinstance(spec, str) and spec.lower().endswith(".zip"):
-        if kwargs:
-            raise ValueError(f"a trained agent ({spec}) takes no settings, got {sorted(kwargs)}")
-        if not Path(spec).is_file():
-            raise ValueError(
-                f"policy {spec!r}: no such model file; give the path to a .zip saved by `atc-nf train` or "
-                "`atc-nf imitate` (shipped models: agents/models/*.zip)"
-            )
-        from agents.policy import SB3AgentPolicy
-
-        return SB3AgentPolicy(spec)
-    if spec == "nf":
-        if kwargs:
-            raise ValueError(f"policy 'nf' takes no settings, got {sorted(kwargs)}")
-        from baselines import NFDirect
-
-        return NFDirect()
-    if spec == "mpc":
-        from baselines import MCMCMPC
-
-        return MCMCMPC(**kwargs)
-    raise ValueError(
-        f"unknown policy {spec!r}; allowed: {', '.join(BUILTIN_POLICIES)}, or the path of a trained agent's "
-        ".zip (e.g. agents/models/<model>.zip)"
-    )
 
 
 @dataclass(frozen=True)
@@ -99,13 +68,27 @@ class Study:
         }
 
 
+#: Studies this process has warmed up for (numba compiled or loaded, policy's first call).
+_warmed_up: set[str] = set()
+
+
 def run_one(study: Study, seed: int) -> dict[str, Any]:
-    """One run of the study: the metrics dict that goes on one line of the results file."""
+    """One run of the study: the metrics dict that goes on one line of the results file.
+
+    The first run of a study in a process first flies an untimed warm-up (``warm_up``)
+    and reports its duration as ``compile_s``; later runs in that process report 0.
+    """
     policy = make_policy(study.policy, **study.policy_kwargs)
     scenario = make_scenario(study.scenario, seed=seed)
     record_every = 0
     if study.airspeed_every_s:
         record_every = kernel.steps_for(study.airspeed_every_s, SimConfig().dt_s)
+    compile_s = 0.0
+    key = json.dumps(study.header(), sort_keys=True, default=str)
+    if key not in _warmed_up:
+        compile_s = warm_up(policy, scenario, seed=seed, wind_sigma_mps=study.wind_sigma_mps,
+                            record_every=record_every)
+        _warmed_up.add(key)
     result = run_episode(
         policy,
         scenario,
@@ -125,6 +108,7 @@ def run_one(study: Study, seed: int) -> dict[str, Any]:
     info = getattr(policy, "episode_info", None)
     record["policy_info"] = info() if callable(info) else {}
     record["peak_rss_mb"] = peak_rss_mb()
+    record["compile_s"] = compile_s
     return record
 
 
@@ -224,9 +208,11 @@ def evaluate(
         on_run: called with each finished run's record (after it is written).
 
     Returns:
-        The summary of DESIGN.md's contract over all the study's runs, plus
-        ``fallbacks`` (MPC decisions with no feasible candidate) and
-        ``wall_s_per_decision``.
+        The summary of DESIGN.md's contract over all the study's runs (``summarize``),
+        plus ``decisions``, ``wall_s_per_decision`` and, for policies that report it,
+        ``fallbacks`` (MPC decisions with no feasible candidate). Times are warm: every
+        worker process warms up before its first timed run, and the longest warm-up is
+        ``compile_s``.
     """
     if not isinstance(runs, int) or runs < 1:
         raise ValueError(f"runs = {runs!r}: must be an integer >= 1")
@@ -247,7 +233,10 @@ def evaluate(
         old_header, old_runs = read_results(out)
         if old_runs or old_header:
             if not resume:
-                raise ValueError(f"{out} already holds a study; pass resume to finish it, or choose another file")
+                raise ValueError(
+                    f"{out} already holds a study; finish it with --resume (resume=True in Python), "
+                    "or choose another file"
+                )
             if old_header is not None and {k: old_header.get(k) for k in header} != header:
                 raise ValueError(
                     f"{out} holds a different study ({old_header.get('policy')!r} on "
@@ -282,12 +271,16 @@ def evaluate(
 
 def summarize_records(records: list[dict[str, Any]]) -> dict[str, Any]:
     """The study summary from the results file's run records."""
+    warm_ups = [r["compile_s"] for r in records if r.get("compile_s") is not None]
     summary = summarize(
         [_metrics_from(r) for r in records],
         peak_rss_mb=max((r.get("peak_rss_mb") or 0.0 for r in records), default=None),
+        compile_s=max(warm_ups) if warm_ups else None,
     )
     decisions = sum(r["decisions"] for r in records)
-    summary["fallbacks"] = int(sum((r.get("policy_info") or {}).get("fallbacks", 0) for r in records))
+    infos = [r.get("policy_info") or {} for r in records]
+    if any("fallbacks" in info for info in infos):  # only policies that can fall back report it
+        summary["fallbacks"] = int(sum(info.get("fallbacks", 0) for info in infos))
     summary["decisions"] = int(decisions)
     summary["wall_s_per_decision"] = (
         sum(r["decision_s_mean"] * r["decisions"] for r in records) / decisions if decisions else 0.0

@@ -8,13 +8,18 @@ outside [366, 540] kt, and the worst excursion outside it (kt).
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import Any, Iterable
 
 import numpy as np
 
 from atc_nf_env.kernel import ARRIVED, LEFT, NO_PAIR_SEPARATION_NM, S_PATH, S_STATUS, S_TIME
+from atc_nf_env.config import SimConfig
 from atc_nf_env.simulation import Simulation
+
+#: The default guard on the commanded airspeed, kt (``SimConfig.airspeed_cap_kt``).
+AIRSPEED_CAP_KT: float = SimConfig().airspeed_cap_kt
 
 
 @dataclass
@@ -90,11 +95,49 @@ def _stats(values: list[float]) -> dict[str, float | None]:
     return {"min": float(min(values)), "mean": float(np.mean(values)), "max": float(max(values))}
 
 
-def summarize(runs: list[RunMetrics], peak_rss_mb: float | None = None) -> dict[str, Any]:
+def wilson_interval(successes: int, trials: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % for the default z).
+
+    Unlike the normal approximation it stays inside [0, 1] and is not empty at 0 or
+    ``trials`` successes: 300 of 300 gives [0.9874, 1].
+    """
+    if not isinstance(trials, int) or trials < 1 or not 0 <= successes <= trials:
+        raise ValueError(f"wilson_interval: need 0 <= successes <= trials and trials >= 1, got {successes}/{trials}")
+    p = successes / trials
+    denominator = 1.0 + z * z / trials
+    centre = (p + z * z / (2 * trials)) / denominator
+    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denominator
+    # Exact at the ends: the Wilson bound is 1 (or 0) there, up to rounding.
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == trials else min(1.0, centre + half)
+    return low, high
+
+
+#: What the timing fields of a summary mean, written into it so that a reader need not guess.
+TIMING_NOTE = (
+    "wall_s_per_run and decision_s are warm (numba compiled, policy loaded); compile_s is the "
+    "warm-up apart: numba compiling or loading its cache and the policy's first call, "
+    "the longest over the worker processes"
+)
+
+
+def summarize(
+    runs: list[RunMetrics],
+    peak_rss_mb: float | None = None,
+    *,
+    compile_s: float | None = None,
+    airspeed_cap_kt: float = AIRSPEED_CAP_KT,
+) -> dict[str, Any]:
     """The summary of DESIGN.md's contract over runs.
 
     ``flight_time_min`` is over arrived aircraft; ``envelope_violation_fraction`` pools
-    the integration steps of all runs.
+    the integration steps of all runs. Safety is also counted per run:
+    ``runs_with_envelope_violation`` (any integration step outside [366, 540] kt),
+    ``runs_at_airspeed_cap`` (the commanded airspeed reached ±``airspeed_cap_kt``),
+    ``runs_with_los``, ``worst_envelope_excursion_kt`` (the largest over runs) and
+    ``min_separation_nm`` {min, mean, max} over runs. ``success_rate_ci95`` is the
+    Wilson score interval of the success rate. ``compile_s`` (s) is the warm-up kept out
+    of the timings (see ``TIMING_NOTE``); None when unknown.
     """
     if not runs:
         raise ValueError("summarize needs at least one run")
@@ -105,10 +148,14 @@ def summarize(runs: list[RunMetrics], peak_rss_mb: float | None = None) -> dict[
     decision_times = [r.decision_s_mean for r in runs if r.decisions]
     speeds_min = [r.airspeed_min_kt for r in runs if r.airspeed_min_kt is not None]
     speeds_max = [r.airspeed_max_kt for r in runs if r.airspeed_max_kt is not None]
+    successes = sum(bool(r.success) for r in runs)
+    worst = float(max(r.worst_excursion_kt for r in runs))
     return {
         "scenario": runs[0].scenario,
         "runs": len(runs),
-        "success_rate": sum(r.success for r in runs) / len(runs),
+        "success_rate": successes / len(runs),
+        "success_rate_ci95": list(wilson_interval(successes, len(runs))),
+        "success_rate_ci95_method": "Wilson score",
         "arrived_fraction": float(np.mean([a for r in runs for a in r.arrived])),
         "los_count": int(sum(r.los_count for r in runs)),
         "runs_with_los": int(sum(r.los_count > 0 for r in runs)),
@@ -118,15 +165,29 @@ def summarize(runs: list[RunMetrics], peak_rss_mb: float | None = None) -> dict[
             "max": max(speeds_max) if speeds_max else None,
         },
         "envelope_violation_fraction": violations / steps if steps else 0.0,
-        "worst_excursion_kt": float(max(r.worst_excursion_kt for r in runs)),
+        "runs_with_envelope_violation": int(sum(r.envelope_violation_fraction > 0 for r in runs)),
+        "runs_at_airspeed_cap": int(sum(_reached_cap(r, airspeed_cap_kt) for r in runs)),
+        "worst_envelope_excursion_kt": worst,
+        "worst_excursion_kt": worst,  # the same, under its earlier name
         "flight_time_min": {
             "mean": float(np.mean(flight_times)) if flight_times else None,
             "max": float(max(flight_times)) if flight_times else None,
         },
-        "wall_s_per_run": {"mean": float(np.mean([r.wall_s for r in runs]))},
+        "wall_s_per_run": {
+            "mean": float(np.mean([r.wall_s for r in runs])),
+            "median": float(np.median([r.wall_s for r in runs])),
+        },
         "decision_s": {"mean": float(np.mean(decision_times)) if decision_times else 0.0},
+        "compile_s": compile_s,
+        "timing_note": TIMING_NOTE,
         "peak_rss_mb": peak_rss_mb,
     }
+
+
+def _reached_cap(run: RunMetrics, airspeed_cap_kt: float) -> bool:
+    # The kernel clips the commanded airspeed to exactly ±cap, so equality is the test.
+    extremes = [abs(v) for v in (run.airspeed_min_kt, run.airspeed_max_kt) if v is not None]
+    return bool(extremes) and max(extremes) >= airspeed_cap_kt
 
 
 def peak_rss_mb() -> float:

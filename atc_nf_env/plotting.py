@@ -1,4 +1,7 @@
-"""Figures of an episode: trajectories (paper Figs. 5-8) and airspeed over time (Figs. 3, 4, 9)."""
+"""Figures of an episode: trajectories (paper Figs. 5-8) and airspeed over time (Figs. 3, 4, 9).
+
+Aircraft keep the same colours here and in the animations (``rendering.AIRCRAFT_COLORS``).
+"""
 
 from __future__ import annotations
 
@@ -6,9 +9,18 @@ from pathlib import Path
 
 import numpy as np
 
+from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import EpisodeResult
 from atc_nf_env.kernel import R_AIRSPEED, R_FLEW, R_X, R_Y
-from atc_nf_env.units import AIRSPEED_MAX_KT, AIRSPEED_MIN_KT, AIRSPEED_NOMINAL_KT
+from atc_nf_env.rendering import AIRCRAFT_COLORS
+from atc_nf_env.units import AIRSPEED_MAX_KT, AIRSPEED_MIN_KT, AIRSPEED_NOMINAL_KT, DECISION_PERIOD_S
+
+#: Caption of an airspeed figure whose policy moves the waypoints every period.
+SAWTOOTH_NOTE = (
+    "The sawtooth: every {period:g} min the policy sets new waypoints about 100 nm ahead; the NF "
+    "airspeed then falls\nas the aircraft closes on its waypoint (airspeed grows with ‖∇Φ‖² and the "
+    "distance²) and jumps back at the next decision."
+)
 
 
 def _pyplot():
@@ -20,63 +32,111 @@ def _pyplot():
     return plt
 
 
-def plot_trajectories(result: EpisodeResult, path: str | Path, title: str | None = None) -> None:
-    """Ground tracks of every aircraft, with starts, destinations and 5 nm disks at the
-    moment of minimum separation is not known here, so at the start."""
+def aircraft_color(i: int) -> str:
+    """The colour of aircraft ``i`` in every figure and animation."""
+    return AIRCRAFT_COLORS[i % len(AIRCRAFT_COLORS)]
+
+
+def episode_title(result: EpisodeResult, what: str, policy: str | None = None,
+                  wind_sigma_mps: float | None = None) -> str:
+    """'<policy> on <scenario>, seed S, wind (east, north) kt [σ m/s]: <what>'."""
+    m = result.metrics
+    wind = f"wind ({m.wind_kt[0]:+.1f}, {m.wind_kt[1]:+.1f}) kt"
+    if wind_sigma_mps is not None:
+        wind += f" (σ {wind_sigma_mps:g} m/s)"
+    head = f"{policy} on {m.scenario}" if policy else m.scenario
+    return f"{head}, seed {m.seed}, {wind}: {what}"
+
+
+def plot_trajectories(result: EpisodeResult, path: str | Path, title: str | None = None, *,
+                      policy: str | None = None, wind_sigma_mps: float | None = None) -> None:
+    """Ground tracks of every aircraft: hollow circles at the starts, filled squares where
+    each track ends (drawn on top: in converging encounters an aircraft ends where
+    another started)."""
     plt = _pyplot()
     records = result.records
     if records.shape[0] == 0:
         raise ValueError("the episode was run without recording (record_every = 0)")
-    scenario_starts = records[0, :, R_X : R_Y + 1]
-    fig, ax = plt.subplots(figsize=(6.2, 6.2))
+    starts = records[0, :, R_X : R_Y + 1]
+    fig, ax = plt.subplots(figsize=(6.4, 6.6))
     for i in range(records.shape[1]):
+        color = aircraft_color(i)
         flew = records[:, i, R_FLEW] > 0
-        line = ax.plot(records[flew, i, R_X], records[flew, i, R_Y], lw=1.4, label=f"aircraft {i}")[0]
-        ax.plot(*scenario_starts[i], "o", color=line.get_color(), ms=5)
-        last = np.flatnonzero(flew)[-1]
-        ax.plot(records[last, i, R_X], records[last, i, R_Y], "s", color=line.get_color(), ms=5)
+        ax.plot(records[flew, i, R_X], records[flew, i, R_Y], lw=1.4, color=color, label=f"aircraft {i}")
+        ax.plot(*starts[i], "o", mfc="none", mec=color, mew=1.6, ms=11, zorder=3)
+        last = np.flatnonzero(flew)[-1] if flew.any() else 0
+        ax.plot(records[last, i, R_X], records[last, i, R_Y], "s", color=color, ms=5, zorder=4)
+    ax.plot([], [], "o", mfc="none", mec="k", ms=9, label="start")
+    ax.plot([], [], "s", color="k", ms=5, label="end of track")
     ax.set_aspect("equal")
     ax.set_xlabel("x (nm)")
     ax.set_ylabel("y (nm)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")
-    ax.set_title(title or f"{result.metrics.scenario}: trajectories (o start, ■ end)")
+    ax.set_title(title or episode_title(result, "trajectories", policy, wind_sigma_mps), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def plot_airspeed(result: EpisodeResult, path: str | Path, title: str | None = None) -> None:
-    """Airspeed of every aircraft over time, with the envelope [366, 540] kt."""
+def _moves_waypoints(result: EpisodeResult) -> bool:
+    waypoints = result.waypoints
+    return len(waypoints) > 1 and bool(np.any(np.abs(np.diff(waypoints, axis=0)) > 1e-6))
+
+
+def plot_airspeed(result: EpisodeResult, path: str | Path, title: str | None = None, *,
+                  policy: str | None = None, wind_sigma_mps: float | None = None,
+                  caption: str | None = None) -> None:
+    """Airspeed of every aircraft over time, with the envelope [366, 540] kt and, when the
+    data reach it, the ±cap guard of the law. The axis spans every value flown (nothing is
+    clipped). ``caption`` (default: the sawtooth note when the policy moved the waypoints)
+    is printed under the axes."""
     plt = _pyplot()
     records = result.records
     if records.shape[0] == 0:
         raise ValueError("the episode was run without recording (record_every = 0)")
     minutes = result.times_s / 60.0
-    fig, ax = plt.subplots(figsize=(8, 4.2))
+    if caption is None and _moves_waypoints(result):
+        caption = SAWTOOTH_NOTE.format(period=DECISION_PERIOD_S / 60.0)
+    fig, ax = plt.subplots(figsize=(8, 4.6 if caption else 4.2))
     for i in range(records.shape[1]):
         flew = records[:, i, R_FLEW] > 0
-        ax.plot(minutes[flew], records[flew, i, R_AIRSPEED], lw=1.2, label=f"aircraft {i}")
+        ax.plot(minutes[flew], records[flew, i, R_AIRSPEED], lw=1.2, color=aircraft_color(i), label=f"aircraft {i}")
     ax.axhline(AIRSPEED_MIN_KT, color="k", ls="--", lw=1)
-    ax.axhline(AIRSPEED_MAX_KT, color="k", ls="--", lw=1, label="envelope")
-    ax.axhline(AIRSPEED_NOMINAL_KT, color="g", ls=":", lw=1, label="nominal")
-    top = max(AIRSPEED_MAX_KT * 1.3, float(np.percentile(records[..., R_AIRSPEED], 99)) * 1.05)
-    ax.set_ylim(min(0.0, float(records[..., R_AIRSPEED].min())) - 20, top)
+    ax.axhline(AIRSPEED_MAX_KT, color="k", ls="--", lw=1,
+               label=f"envelope {AIRSPEED_MIN_KT:g}–{AIRSPEED_MAX_KT:g} kt")
+    ax.axhline(AIRSPEED_NOMINAL_KT, color="0.45", ls="-.", lw=1, label=f"nominal {AIRSPEED_NOMINAL_KT:g} kt")
+    flown = records[..., R_AIRSPEED][records[..., R_FLEW] > 0]
+    low = min(AIRSPEED_MIN_KT - 60.0, float(flown.min())) if flown.size else AIRSPEED_MIN_KT - 60.0
+    high = max(AIRSPEED_MAX_KT + 60.0, float(flown.max())) if flown.size else AIRSPEED_MAX_KT + 60.0
+    cap = SimConfig().airspeed_cap_kt
+    if flown.size and float(np.abs(flown).max()) >= cap:
+        for sign in (1, -1):
+            ax.axhline(sign * cap, color="r", ls=":", lw=1, label=f"±{cap:g} kt guard (law saturated)" if sign > 0
+                       else None)
+    margin = 0.04 * (high - low)
+    ax.set_ylim(low - margin, high + margin)
     ax.set_xlabel("time (min)")
     ax.set_ylabel("airspeed (kt)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, ncol=2)
-    ax.set_title(title or f"{result.metrics.scenario}: airspeed")
-    fig.tight_layout()
+    ax.set_title(title or episode_title(result, "airspeed", policy, wind_sigma_mps), fontsize=9)
+    if caption:
+        fig.text(0.01, 0.01, caption, fontsize=7.5, va="bottom", ha="left")
+        fig.tight_layout(rect=(0, 0.09, 1, 1))
+    else:
+        fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def write_episode_plots(result: EpisodeResult, directory: str | Path, prefix: str) -> list[Path]:
-    """Trajectories and airspeed figures of an episode into ``directory``; returns the paths."""
+def write_episode_plots(result: EpisodeResult, directory: str | Path, prefix: str, *,
+                        policy: str | None = None, wind_sigma_mps: float | None = None) -> list[Path]:
+    """Trajectories and airspeed figures of an episode into ``directory`` (created if
+    missing), titled with the policy, scenario, seed and wind; returns the paths."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = [directory / f"{prefix}_trajectories.png", directory / f"{prefix}_airspeed.png"]
-    plot_trajectories(result, paths[0])
-    plot_airspeed(result, paths[1])
+    plot_trajectories(result, paths[0], policy=policy, wind_sigma_mps=wind_sigma_mps)
+    plot_airspeed(result, paths[1], policy=policy, wind_sigma_mps=wind_sigma_mps)
     return paths

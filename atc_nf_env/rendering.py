@@ -27,7 +27,9 @@ import numpy as np
 from atc_nf_env.kernel import FLYING, R_FLEW, R_HEADING, R_X, R_Y, S_DEST_X, S_DEST_Y, S_HEADING, S_STATUS, S_WP_X, S_WP_Y, S_X, S_Y
 from atc_nf_env.units import SEPARATION_MIN_NM
 
-_COLORS = (
+#: Colour of aircraft i (cyclic), shared with the static figures (``plotting``); red is
+#: kept for the conflict disks.
+AIRCRAFT_COLORS = (
     "#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f", "#d62728",
 )
 
@@ -104,11 +106,11 @@ class FrameRenderer:
         self._artists: list[Any] = []
         self._background: Any = None
 
-    def _frame(self, extent: tuple[float, float, float, float], title: str) -> None:
-        """The static part (axes, ticks, grid, labels), drawn once per view and kept as a
-        pixel background: redrawing the tick labels every frame would cost most of the
+    def _frame(self, extent: tuple[float, float, float, float], title: str, n_aircraft: int = 0) -> None:
+        """The static part (axes, ticks, grid, labels, legend), drawn once per view and kept
+        as a pixel background: redrawing the tick labels every frame would cost most of the
         drawing time."""
-        if (extent, title) == self._view:
+        if (extent, title, n_aircraft) == self._view:
             return
         ax = self.axes
         for artist in self._artists:
@@ -122,17 +124,31 @@ class FrameRenderer:
         ax.set_xlabel("x (nm)", fontsize=8)
         ax.set_ylabel("y (nm)", fontsize=8)
         ax.set_title(title, fontsize=9)
+        self._legend(n_aircraft)
         self._artists = []
-        self._view = (extent, title)
+        self._view = (extent, title, n_aircraft)
         self.canvas.draw()
         self._background = self.canvas.copy_from_bbox(self.figure.bbox)
+
+    def _legend(self, n_aircraft: int) -> None:
+        from matplotlib.lines import Line2D
+
+        handles = [Line2D([], [], color=AIRCRAFT_COLORS[i % len(AIRCRAFT_COLORS)], marker=">", lw=1.0, ms=5,
+                          label=f"aircraft {i}") for i in range(n_aircraft)]
+        handles += [
+            Line2D([], [], color="k", marker="x", ls="none", ms=5, mew=1.5, label="destination"),
+            Line2D([], [], color="k", marker="o", mfc="none", ls=":", lw=0.9, ms=5, label="waypoint"),
+            Line2D([], [], color="k", marker="o", mfc="none", ls="none", ms=9, label="5 nm separation"),
+            Line2D([], [], color="red", marker="o", alpha=0.5, ls="none", ms=9, label="in conflict"),
+        ]
+        self.axes.legend(handles=handles, loc="lower right", fontsize=6, ncol=2, framealpha=0.8)
 
     def draw(self, snap: Snapshot) -> np.ndarray:
         """The frame (size_px, size_px, 3) uint8 of ``snap``."""
         from matplotlib.patches import Circle, Polygon
 
         ax = self.axes
-        self._frame(tuple(float(v) for v in snap.extent), snap.title)  # type: ignore[arg-type]
+        self._frame(tuple(float(v) for v in snap.extent), snap.title, len(snap.positions))  # type: ignore[arg-type]
         for artist in self._artists:
             artist.remove()
         self.canvas.restore_region(self._background)
@@ -141,7 +157,7 @@ class FrameRenderer:
         span = max(xmax - xmin, ymax - ymin)
         size = 0.018 * span  # aircraft glyph, nm
         for i in range(len(snap.positions)):
-            color = _COLORS[i % len(_COLORS)]
+            color = AIRCRAFT_COLORS[i % len(AIRCRAFT_COLORS)]
             trail = snap.trails[i] if i < len(snap.trails) else np.zeros((0, 2))
             if len(trail) > 1:
                 added += ax.plot(trail[:, 0], trail[:, 1], color=color, lw=1.0, alpha=0.7)

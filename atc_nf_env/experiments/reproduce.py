@@ -189,7 +189,10 @@ def write_report(path: Path, results: dict[str, Any]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Reproduce the paper's section IV: figures and table.")
+    from atc_nf_env.cli import HelpFormatter
+
+    parser = argparse.ArgumentParser(prog="atc-nf reproduce", formatter_class=HelpFormatter,
+                                     description="Reproduce the paper's section IV: figures and table.")
     parser.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs per MPC study")
     parser.add_argument("--out", type=Path, default=Path("out/reproduction"), help="folder for the runs (JSON lines)")
     parser.add_argument("--figures", type=Path, default=Path("docs/figures"), help="folder for the figures")
