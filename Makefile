@@ -27,6 +27,7 @@ $(DEMO_BIN)/atc-nf: pyproject.toml
 	touch $@
 
 demo: $(DEMO_BIN)/atc-nf
+	mkdir -p out
 	$(DEMO_BIN)/atc-nf fly --policy mpc --scenario converging-4 --wind-sigma 5.17 --seed 0 \
 		--summary-json out/summary.json --plots out/figs
 
