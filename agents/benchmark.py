@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from atc_nf_env.evaluate import Study, evaluate, read_results
+from atc_nf_env.evaluate import STEP_TRACE_KEYS, Study, evaluate, read_results
 
 SCENARIOS = "converging-4,converging-6,random-4"
 
@@ -51,7 +51,7 @@ def reuse_mpc_runs(study: Study, runs: int, source_dir: Path, target: Path) -> i
         with target.open("w") as handle:
             handle.write(json.dumps(header) + "\n")
             for record in chosen:
-                record = {k: v for k, v in record.items() if k != "airspeed_series_kt"}
+                record = {k: v for k, v in record.items() if k not in STEP_TRACE_KEYS}
                 handle.write(json.dumps(record) + "\n")
         return len(chosen)
     return 0

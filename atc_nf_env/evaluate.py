@@ -24,7 +24,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from atc_nf_env import kernel
+import numpy as np
+
+from atc_nf_env import build, kernel
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import MAX_EPISODE_S, run_episode, warm_up
 from atc_nf_env.metrics import RunMetrics, peak_rss_mb, summarize
@@ -44,8 +46,14 @@ class Study:
     wind_sigma_mps: float = WIND_SIGMA_MPS
     policy_kwargs: dict[str, Any] = field(default_factory=dict)
     max_time_s: float = MAX_EPISODE_S
-    #: Keep each run's airspeeds every this many seconds (for the paper's Figs. 4 and 9),
-    #: as ``airspeed_series_kt`` [aircraft][sample], null once the aircraft is gone.
+    #: Trace every integration step of each run and keep, per window of this many
+    #: seconds (for the paper's Figs. 4 and 9), each aircraft's minimum, mean and
+    #: maximum airspeed over the steps it flew in the window, as ``airspeed_band_kt``
+    #: [aircraft][window] = [min, mean, max] (null where it flew no step); with them
+    #: ``airspeed_mean_kt`` (over every step flown), ``distance_short_nm`` (per aircraft,
+    #: null if it arrived), ``excursion_decisions`` (decisions whose period has a step
+    #: outside the envelope) and ``fallback_decisions`` (the policy's fallbacks, when it
+    #: keeps ``decisions`` records with a ``fallback`` flag, as the MPC does).
     airspeed_every_s: float | None = None
 
     def __post_init__(self) -> None:
@@ -65,6 +73,7 @@ class Study:
             "max_time_s": self.max_time_s,
             "airspeed_every_s": self.airspeed_every_s,
             "config": SimConfig().as_dict(),
+            "build": build.fingerprint(),
         }
 
 
@@ -80,9 +89,7 @@ def run_one(study: Study, seed: int) -> dict[str, Any]:
     """
     policy = make_policy(study.policy, **study.policy_kwargs)
     scenario = make_scenario(study.scenario, seed=seed)
-    record_every = 0
-    if study.airspeed_every_s:
-        record_every = kernel.steps_for(study.airspeed_every_s, SimConfig().dt_s)
+    record_every = 1 if study.airspeed_every_s else 0
     compile_s = 0.0
     key = json.dumps(study.header(), sort_keys=True, default=str)
     if key not in _warmed_up:
@@ -98,18 +105,53 @@ def run_one(study: Study, seed: int) -> dict[str, Any]:
         record_every=record_every,
     )
     record = result.metrics.to_dict()
-    if record_every:
-        flew = result.records[..., kernel.R_FLEW] > 0
-        speeds = result.records[..., kernel.R_AIRSPEED]
-        record["airspeed_series_kt"] = [
-            [round(float(v), 2) if f else None for v, f in zip(speeds[:, i], flew[:, i])]
-            for i in range(speeds.shape[1])
-        ]
+    if study.airspeed_every_s:
+        record.update(_step_trace(result, scenario, study.airspeed_every_s))
+        decisions = getattr(policy, "decisions", None) or []
+        record["fallback_decisions"] = [k for k, d in enumerate(decisions) if getattr(d, "fallback", False)]
     info = getattr(policy, "episode_info", None)
     record["policy_info"] = info() if callable(info) else {}
     record["peak_rss_mb"] = peak_rss_mb()
     record["compile_s"] = compile_s
     return record
+
+
+#: Keys of a run record that only a study with ``airspeed_every_s`` writes.
+STEP_TRACE_KEYS = ("airspeed_band_kt", "airspeed_mean_kt", "distance_short_nm", "excursion_decisions",
+                   "fallback_decisions")
+
+
+def _step_trace(result: Any, scenario: Any, every_s: float) -> dict[str, Any]:
+    """What a run's every-step record (``record_every=1``) gives the reproduction: airspeed
+    bands per window, the mean airspeed, how far short each non-arrival ended, and which
+    decision periods had a step outside the envelope."""
+    config = SimConfig()
+    # Row 0 is the state before the first step; row r > 0 is the state after step r.
+    speeds = result.records[1:, :, kernel.R_AIRSPEED]
+    flew = result.records[1:, :, kernel.R_FLEW] > 0
+    step_start_s = np.arange(speeds.shape[0]) * config.dt_s
+    window = np.floor(step_start_s / every_s + 1e-9).astype(np.int64)
+    n_windows = int(window[-1]) + 1 if window.size else 0
+    bands: list[list[list[float] | None]] = []
+    for i in range(speeds.shape[1]):
+        rows: list[list[float] | None] = [None] * n_windows
+        for w in range(n_windows):
+            values = speeds[(window == w) & flew[:, i], i]
+            if values.size:
+                rows[w] = [round(float(values.min()), 2), round(float(values.mean()), 2),
+                           round(float(values.max()), 2)]
+        bands.append(rows)
+    flown = speeds[flew]
+    outside = flew & ((speeds < config.airspeed_min_kt) | (speeds > config.airspeed_max_kt))
+    decision_of_step = np.searchsorted(result.decision_times_s, step_start_s + 1e-9, side="right") - 1
+    final = result.records[-1, :, kernel.R_X : kernel.R_Y + 1]
+    short = np.hypot(*(final - scenario.dest_xy).T)
+    return {
+        "airspeed_band_kt": bands,
+        "airspeed_mean_kt": float(flown.mean()) if flown.size else None,
+        "distance_short_nm": [None if a else round(float(d), 2) for a, d in zip(result.metrics.arrived, short)],
+        "excursion_decisions": sorted({int(k) for k in decision_of_step[outside.any(axis=1)]}),
+    }
 
 
 def _worker_init() -> None:
@@ -236,6 +278,12 @@ def evaluate(
                 raise ValueError(
                     f"{out} already holds a study; finish it with --resume (resume=True in Python), "
                     "or choose another file"
+                )
+            if old_header is not None and old_header.get("build") != header["build"]:
+                raise ValueError(
+                    f"{out} holds runs of another build ({old_header.get('build')!r}; this one is "
+                    f"{header['build']!r}): the sources or libraries that fly a run changed since, so its "
+                    "runs cannot be resumed; fly the study again into a new file"
                 )
             if old_header is not None and {k: old_header.get(k) for k in header} != header:
                 raise ValueError(

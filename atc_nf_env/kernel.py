@@ -15,9 +15,10 @@ scheme (explicit Euler on the first step under a new waypoint) (paper (1), (5)):
     ω_i = −k_θ (θ_i − θ_nh,i) + θ̇_nh,i
 
 with F_i = k_u ‖∇_iΦ_i‖² + k_z ‖q_i − q_d‖², P_i = [cos θ_i, sin θ_i] · ∇_iΦ_i,
-∂Φ_i/∂t = Σ_j u_j ∇_jΦ_i · [cos θ_j, sin θ_j] (neighbours' airspeeds of the previous
-step: the law for u_i would otherwise depend on u_j of the same instant), and θ_nh the
-angle of sgn(p_i) ∇_iΦ_i. The wind w enters the ground velocity only: the envelope
+∂Φ_i/∂t = Σ_j u_j ∇_jΦ_i · [cos θ_j, sin θ_j] evaluated with the neighbours' feedback
+airspeeds u_j = −sgn(P_j) F_j of the same instant (the law is implicit in u_j, whose own
+∂Φ_j/∂t term depends on u_i; the previous step's u_j diverged in head-on encounters),
+and θ_nh the angle of sgn(p_i) ∇_iΦ_i. The wind w enters the ground velocity only: the envelope
 constrains airspeed, and the NF never sees the wind.
 
 Guards against the law's singularities (each keeps a value finite that the law

@@ -1,13 +1,21 @@
 """The paper's section IV from fresh runs: figures and the reproduction table.
 
 - Figs. 3, 5, 7 and the wind failure: the NF alone (``nf_alone``);
-- Figs. 4 and 9: mean, min and max airspeed of every aircraft over time across the
-  MPC's Monte Carlo runs, with the envelope;
+- Figs. 4 and 9: per aircraft, the mean airspeed and the lowest and highest airspeed
+  over every integration step of the MPC's Monte Carlo runs, minute by minute, with the
+  envelope (the axis always spans every excursion);
 - Figs. 6 and 8: trajectories of one MPC run (seed 0) for 4 and 6 aircraft;
-- ``REPRODUCTION.md``: every claim of section IV with the paper's number and ours.
+- ``REPRODUCTION.md``: every claim of section IV with the paper's number and ours, and
+  the MPC on seeded random 4- and 6-aircraft encounters. Every cell is computed from the
+  runs; sections between ``<!-- begin NAME -->`` and ``<!-- end NAME -->`` markers that
+  other scripts wrote into the report are kept as they are.
+- ``README.md``: the block between ``<!-- begin reproduction-summary -->`` markers gets
+  the report's summary paragraph, so the README says what the table says.
 
 The Monte Carlo studies go through the evaluator: their runs are kept in JSON-lines
 files under the output folder, so an interrupted reproduction resumes where it stopped.
+Runs flown by another build (``atc_nf_env.build.fingerprint``: a change to a source
+that flies a run, or to NumPy/numba) are never reused: that study is flown again.
 
 Run: atc-nf reproduce [--runs 1000] [--out out/reproduction] [--report REPRODUCTION.md]
 """
@@ -17,142 +25,355 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import re
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from atc_nf_env import build
 from atc_nf_env.config import SimConfig
-from atc_nf_env.episode import run_episode
+from atc_nf_env.episode import MAX_EPISODE_S, run_episode
 from atc_nf_env.evaluate import Study, evaluate, read_results
 from atc_nf_env.experiments import nf_alone
-from atc_nf_env.plotting import _pyplot, plot_airspeed, plot_trajectories
+from atc_nf_env.plotting import _pyplot, aircraft_color, plot_airspeed, plot_trajectories
 from atc_nf_env.scenarios import converging
 from atc_nf_env.units import AIRSPEED_MAX_KT, AIRSPEED_MIN_KT, AIRSPEED_NOMINAL_KT, WIND_SIGMA_MPS
 from baselines import MCMCMPC
 
-SERIES_EVERY_S = 60.0
+#: Width of the airspeed bands' windows, s.
+BAND_WINDOW_S = 60.0
+
+#: The MPC studies: scenario -> the paper's figures for it (None where the paper has none).
+MPC_STUDIES: dict[str, dict[str, Any] | None] = {
+    "converging-4": {"arrive": "1000/1000", "time_min": "66", "compute_s": "200", "memory_mb": "110",
+                     "separation_nm": "11.5 - 16", "band_figure": 4, "trajectory_figure": 6},
+    "converging-6": {"arrive": "all", "time_min": "85", "compute_s": "1500", "memory_mb": "130",
+                     "separation_nm": "-", "band_figure": 9, "trajectory_figure": 8},
+    "random-4": None,
+    "random-6": None,
+}
+
+SUMMARY_BLOCK = "reproduction-summary"
+_BLOCK = re.compile(r"<!-- begin (?P<name>[\w.-]+) -->.*?<!-- end (?P=name) -->", re.S)
 
 
+# -- airspeed bands ---------------------------------------------------------------------
 def airspeed_bands(records: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(minutes, mean, min, max) airspeed per aircraft over time across runs, kt.
+    """(window start in minutes (T,), mean, min, max (T, N)) airspeed per aircraft across
+    runs, kt: min and max are the extremes over every integration step flown in the
+    window by any run; mean is the mean of the runs' window means. NaN where no run had
+    that aircraft flying in that window."""
+    bands = [r["airspeed_band_kt"] for r in records]
+    n = len(bands[0])
+    length = max(len(aircraft) for run in bands for aircraft in run)
+    data = np.full((len(bands), length, n, 3), np.nan)
+    for k, run in enumerate(bands):
+        for i, windows in enumerate(run):
+            for w, values in enumerate(windows):
+                if values is not None:
+                    data[k, w, i] = values
+    minutes = np.arange(length) * BAND_WINDOW_S / 60.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN windows stay NaN
+        return (minutes, np.nanmean(data[..., 1], 0), np.nanmin(data[..., 0], 0), np.nanmax(data[..., 2], 0))
 
-    Arrays are (T, N); NaN where no run had that aircraft flying at that minute."""
-    series = [r["airspeed_series_kt"] for r in records]
-    n = len(series[0])
-    length = max(len(s[0]) for s in series)
-    data = np.full((len(series), length, n), np.nan)
-    for k, run in enumerate(series):
-        for i, values in enumerate(run):
-            data[k, : len(values), i] = [np.nan if v is None else v for v in values]
-    # The first sample is the scenario's initial airspeed, not an NF command.
-    data[:, 0, :] = np.nan
-    minutes = np.arange(length) * SERIES_EVERY_S / 60.0
-    with np.errstate(all="ignore"):
-        import warnings
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            return minutes, np.nanmean(data, 0), np.nanmin(data, 0), np.nanmax(data, 0)
+def band_axis_limits(low: np.ndarray, high: np.ndarray) -> tuple[float, float]:
+    """y-limits that hold the envelope and every value of the bands, with a margin."""
+    lowest = min(AIRSPEED_MIN_KT, float(np.nanmin(low, initial=AIRSPEED_MIN_KT)))
+    highest = max(AIRSPEED_MAX_KT, float(np.nanmax(high, initial=AIRSPEED_MAX_KT)))
+    margin = max(40.0, 0.05 * (highest - lowest))
+    return lowest - margin, highest + margin
 
 
 def plot_airspeed_bands(records: list[dict[str, Any]], path: Path, title: str) -> None:
+    """One panel per aircraft: min-max band and mean over runs, the envelope, and a mark
+    at every window whose extreme lies outside the envelope."""
     plt = _pyplot()
     minutes, mean, low, high = airspeed_bands(records)
     n = mean.shape[1]
-    fig, axes = plt.subplots(n, 1, figsize=(8, 1.6 * n + 0.6), sharex=True)
+    fig, axes = plt.subplots(n, 1, figsize=(8, 1.7 * n + 0.8), sharex=True)
+    bottom, top = band_axis_limits(low, high)
     for i, ax in enumerate(np.atleast_1d(axes)):
-        ax.fill_between(minutes, low[:, i], high[:, i], alpha=0.3, step="mid")
-        ax.plot(minutes, mean[:, i], lw=1.2)
+        color = aircraft_color(i)
+        ax.fill_between(minutes, low[:, i], high[:, i], alpha=0.3, color=color, step="post",
+                        label="min-max over runs")
+        ax.plot(minutes, mean[:, i], lw=1.2, color=color, drawstyle="steps-post", label="mean over runs")
         ax.axhline(AIRSPEED_MIN_KT, color="k", ls="--", lw=0.8)
-        ax.axhline(AIRSPEED_MAX_KT, color="k", ls="--", lw=0.8)
+        ax.axhline(AIRSPEED_MAX_KT, color="k", ls="--", lw=0.8, label="envelope")
         ax.axhline(AIRSPEED_NOMINAL_KT, color="g", ls=":", lw=0.8)
-        ax.set_ylim(AIRSPEED_MIN_KT - 40, AIRSPEED_MAX_KT + 40)
+        with np.errstate(invalid="ignore"):
+            below = low[:, i] < AIRSPEED_MIN_KT
+            above = high[:, i] > AIRSPEED_MAX_KT
+        if below.any() or above.any():
+            ax.plot(minutes[below], low[below, i], "rv", ms=4)
+            ax.plot(minutes[above], high[above, i], "r^", ms=4, label="outside the envelope")
+            worst_low, worst_high = np.nanmin(low[:, i]), np.nanmax(high[:, i])
+            ax.text(0.01, 0.06, f"lowest {worst_low:.0f} kt, highest {worst_high:.0f} kt", color="r",
+                    transform=ax.transAxes, fontsize=7)
+        ax.set_ylim(bottom, top)
         ax.set_ylabel(f"ac {i} (kt)")
-    np.atleast_1d(axes)[0].set_title(title)
+    first = np.atleast_1d(axes)[0]
+    first.set_title(title, fontsize=9)
+    first.legend(fontsize=6, loc="upper right", ncol=4)
     np.atleast_1d(axes)[-1].set_xlabel("time (min)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
-def mpc_study(n: int, runs: int, out: Path, workers: int | None, progress: bool) -> tuple[dict, list]:
-    study = Study(policy="mpc", scenario=f"converging-{n}", wind_sigma_mps=WIND_SIGMA_MPS,
-                  airspeed_every_s=SERIES_EVERY_S)
-    path = out / f"mpc_converging{n}.jsonl"
+# -- studies ----------------------------------------------------------------------------
+def mpc_study_of(scenario: str) -> Study:
+    return Study(policy="mpc", scenario=scenario, wind_sigma_mps=WIND_SIGMA_MPS, airspeed_every_s=BAND_WINDOW_S)
+
+
+def fly_study(study: Study, runs: int, path: Path, workers: int | None, progress: bool) -> tuple[dict, list, int]:
+    """(summary, records of seeds 0..runs-1, how many of them were reused from ``path``).
+
+    Runs already in ``path`` are reused only if the same build flew the same study;
+    otherwise the file is replaced and the study flown again, and the reason printed."""
+    header, old = read_results(path)
+    expected = study.header()
+    if header is not None and header != expected:
+        if header.get("build") != expected["build"]:
+            why = f"flown by build {header.get('build')}, this build is {expected['build']}"
+        else:
+            changed = sorted(k for k in expected if header.get(k) != expected[k])
+            why = f"a different study (differs in {', '.join(changed)})"
+        print(f"{path}: {len(old)} runs {why}: not reused, flying the study again", file=sys.stderr)
+        path.unlink()
+        old = []
+    reused = sum(1 for r in old if r["seed"] < runs)
     summary = evaluate(study, runs, workers=workers, out=path, resume=path.exists(), progress=progress)
     _, records = read_results(path)
-    records = [r for r in records if r["seed"] < runs]
-    return summary, records
+    records = sorted((r for r in records if r["seed"] < runs), key=lambda r: r["seed"])
+    return summary, records, reused
 
 
-def mean_airspeed(records: list[dict[str, Any]]) -> float:
-    values = [v for r in records for s in r["airspeed_series_kt"] for v in s[1:] if v is not None]
-    return float(np.mean(values))
+def run_safety(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per-run outcomes of a study, from its run records (everything the report says)."""
+    config = SimConfig()
+    runs = len(records)
+    missed = [(r, i) for r in records for i, a in enumerate(r["arrived"]) if not a]
+    holding = [(r, i) for r, i in missed if not r["left_workspace"][i]]
+    left = [(r, i) for r, i in missed if r["left_workspace"][i]]
+    short = [r["distance_short_nm"][i] for r, i in holding]
+    breached = [r for r in records if r["envelope_violation_fraction"] > 0]
+    after_fallback = [r for r in breached if set(r["excursion_decisions"]) & set(r["fallback_decisions"])]
+    without_fallback = [r for r in breached if set(r["excursion_decisions"]) - set(r["fallback_decisions"])]
+    steps = sum(r["steps_flown"] for r in records)
+    outside_steps = sum(round(r["envelope_violation_fraction"] * r["steps_flown"]) for r in records)
+    mean_airspeed = (
+        sum(r["airspeed_mean_kt"] * r["steps_flown"] for r in records if r["airspeed_mean_kt"] is not None) / steps
+        if steps else None
+    )
+    all_home_times = [t for r in records if r["success"] for t in r["flight_time_min"]]
+    return {
+        "runs": runs,
+        "runs_all_home": sum(r["success"] for r in records),
+        "aircraft_not_home": len(missed),
+        "runs_not_home": len({r["seed"] for r, _ in missed}),
+        "aircraft_at_time_limit": len(holding),
+        "aircraft_left_workspace": len(left),
+        "distance_short_nm": {
+            "median": float(np.median(short)) if short else None,
+            "min": float(min(short)) if short else None,
+            "max": float(max(short)) if short else None,
+        },
+        "runs_with_los": sum(r["los_count"] > 0 for r in records),
+        "los_pairs": sum(r["los_count"] for r in records),
+        "runs_outside_envelope": len(breached),
+        "runs_outside_envelope_after_a_fallback": len(after_fallback),
+        "runs_outside_envelope_without_a_fallback": len(without_fallback),
+        "steps": steps,
+        "steps_outside_envelope": outside_steps,
+        "worst_excursion_kt": max((r["worst_excursion_kt"] for r in records), default=0.0),
+        "airspeed_min_kt": min((r["airspeed_min_kt"] for r in records if r["airspeed_min_kt"] is not None),
+                               default=None),
+        "airspeed_max_kt": max((r["airspeed_max_kt"] for r in records if r["airspeed_max_kt"] is not None),
+                               default=None),
+        "mean_airspeed_kt": mean_airspeed,
+        "runs_with_a_fallback": sum(bool(r["fallback_decisions"]) for r in records),
+        "fallbacks": sum(len(r["fallback_decisions"]) for r in records),
+        "decisions": sum(r["decisions"] for r in records),
+        "flight_time_all_home_min": float(np.mean(all_home_times)) if all_home_times else None,
+        "time_limit_min": MAX_EPISODE_S / 60.0,
+        "envelope_kt": [config.airspeed_min_kt, config.airspeed_max_kt],
+    }
 
 
+# -- the report -------------------------------------------------------------------------
 def _fmt(value: float | None, digits: int = 1) -> str:
     return "n/a" if value is None else f"{value:.{digits}f}"
 
 
-def write_report(path: Path, results: dict[str, Any]) -> None:
-    nf4, nf6, nfw = results["nf4"], results["nf6"], results["nf_wind"]
-    rows: list[tuple[str, str, str, str]] = []
-    for n, paper_time, paper_s, paper_mb in ((4, 66, 200, 110), (6, 85, 1500, 130)):
-        s = results[f"mpc{n}"]
-        runs = s["runs"]
-        resolved = round(s["success_rate"] * runs)
+def _count(n: int, one: str, many: str | None = None) -> str:
+    return f"{n} {one if n == 1 else (many or one + 's')}"
+
+
+def arrival_note(s: dict[str, Any]) -> str:
+    if s["aircraft_not_home"] == 0:
+        return ""
+    parts = []
+    if s["aircraft_at_time_limit"]:
+        d = s["distance_short_nm"]
+        parts.append(
+            f"{_count(s['aircraft_at_time_limit'], 'aircraft', 'aircraft')} still flying at the "
+            f"{s['time_limit_min']:.0f}-min time limit, a median {_fmt(d['median'])} nm "
+            f"({_fmt(d['min'])} - {_fmt(d['max'])}) from the destination"
+        )
+    if s["aircraft_left_workspace"]:
+        parts.append(f"{_count(s['aircraft_left_workspace'], 'aircraft', 'aircraft')} left the workspace")
+    return f"{_count(s['aircraft_not_home'], 'aircraft', 'aircraft')} not home in {_count(s['runs_not_home'], 'run')}: " + "; ".join(parts)
+
+
+def envelope_note(s: dict[str, Any]) -> str:
+    if s["runs_outside_envelope"] == 0:
+        return "checked at every integration step"
+    return (
+        f"{_count(s['steps_outside_envelope'], 'step')} of {s['steps']} outside; in "
+        f"{_count(s['runs_outside_envelope_after_a_fallback'], 'run')} a step outside falls in the period of a "
+        f"fallback decision, in {_count(s['runs_outside_envelope_without_a_fallback'], 'run')} in the period of a "
+        "decision whose predicted flight was feasible (note 2)"
+    )
+
+
+def mpc_rows(scenario: str, summary: dict[str, Any], s: dict[str, Any]) -> list[tuple[str, str, str, str]]:
+    paper = MPC_STUDIES[scenario] or {}
+    runs = s["runs"]
+    low, high = s["envelope_kt"]
+    label = f"{scenario}, MPC under wind"
+    sep = summary["min_separation_nm"]
+    rows = [
+        (f"{label}: runs where every aircraft arrives", paper.get("arrive", "-"), f"{s['runs_all_home']}/{runs}",
+         arrival_note(s)),
+        (f"{label}: runs with a loss of separation (< 5 nm)", "0" if paper else "-", f"{s['runs_with_los']}/{runs}",
+         f"{s['los_pairs']} pairs" if s["los_pairs"] else ""),
+        (f"{label}: minimum separation over runs (nm)", paper.get("separation_nm", "-"),
+         f"{_fmt(sep['min'])} - {_fmt(sep['max'])} (mean {_fmt(sep['mean'])})", ""),
+        (f"{label}: runs with an integration step outside [{low:.0f}, {high:.0f}] kt",
+         "0" if paper else "-", f"{s['runs_outside_envelope']}/{runs}", envelope_note(s)),
+        (f"{label}: airspeed range over every step of every run (kt)",
+         f"inside [{low:.0f}, {high:.0f}]" if paper else "-",
+         f"{_fmt(s['airspeed_min_kt'], 0)} .. {_fmt(s['airspeed_max_kt'], 0)}",
+         f"worst excursion {s['worst_excursion_kt']:.0f} kt" if s["worst_excursion_kt"] > 0 else ""),
+        (f"{label}: decisions without any feasible candidate (fallbacks)", "-",
+         f"{s['fallbacks']} of {s['decisions']}",
+         f"in {_count(s['runs_with_a_fallback'], 'run')}" if s["fallbacks"] else ""),
+        (f"{label}: mean airspeed over every step (kt)", "near 454" if paper else "-",
+         _fmt(s["mean_airspeed_kt"], 0), ""),
+        (f"{label}: flight time of the arrived aircraft (min)", paper.get("time_min", "-"),
+         f"mean {_fmt(summary['flight_time_min']['mean'])}, max {_fmt(summary['flight_time_min']['max'])}",
+         "" if s["runs_all_home"] == runs else
+         f"mean {_fmt(s['flight_time_all_home_min'])} over the runs where every aircraft arrived"),
+        (f"{label}: compute time per run (s)",
+         f"{paper['compute_s']} (dual-core Pentium 3.2 GHz)" if paper else "-",
+         f"{_fmt(summary['wall_s_per_run']['mean'], 2)} (one core, {platform.machine()})", "note 3"),
+        (f"{label}: peak memory (MB)", paper.get("memory_mb", "-"), _fmt(summary["peak_rss_mb"], 0),
+         "resident set of a worker process, Python and numba included"),
+    ]
+    return rows
+
+
+def nf_rows(nf4: dict[str, Any], nf6: dict[str, Any], nfw: dict[str, Any]) -> list[tuple[str, str, str, str]]:
+    rows = []
+    for n, nf in ((4, nf4), (6, nf6)):
+        low, high = nf["airspeed_kt"]
         rows += [
-            (f"{n} aircraft, MPC under wind: runs where every aircraft arrives",
-             f"{'1000/1000' if n == 4 else 'all'}", f"{resolved}/{runs}",
-             "non-arrivals are aircraft left holding in an orbit ~20 nm from their destination, see note 1"),
-            (f"{n} aircraft, MPC: runs with a loss of separation", "0", f"{s['runs_with_los']}/{runs}", ""),
-            (f"{n} aircraft, MPC: airspeed range over all runs and integration steps (kt)", "inside [366, 540]",
-             f"{_fmt(s['airspeed_kt']['min'], 0)} .. {_fmt(s['airspeed_kt']['max'], 0)}; "
-             f"{100 * s['envelope_violation_fraction']:.3f} % of steps outside",
-             f"checked at every 5-s step; {results[f'breach_runs{n}']} runs breach it, "
-             f"{results[f'breach_runs_with_fallback{n}']} of them at a fallback decision, the others "
-             "by prediction error (note 4)"),
-            (f"{n} aircraft, MPC: mean airspeed (kt)", "near 454", _fmt(results[f"mean_airspeed{n}"], 0), "note 5"),
-            (f"{n} aircraft, MPC: minimum separation over runs (nm)", "11.5 - 16" if n == 4 else "-",
-             f"{_fmt(s['min_separation_nm']['min'])} - {_fmt(s['min_separation_nm']['max'])} "
-             f"(mean {_fmt(s['min_separation_nm']['mean'])})", ""),
-            (f"{n} aircraft, MPC: flight time (min)", f"{paper_time}",
-             f"mean {_fmt(s['flight_time_min']['mean'])}, max {_fmt(s['flight_time_min']['max'])}",
-             "holding orbits lengthen the mean" if resolved < runs else ""),
-            (f"{n} aircraft, MPC: compute time per run (s)", f"{paper_s} (dual-core Pentium 3.2 GHz)",
-             f"{_fmt(s['wall_s_per_run']['mean'], 2)} (one core, {platform.machine()})", ""),
-            (f"{n} aircraft, MPC: peak memory (MB)", f"{paper_mb}", _fmt(s["peak_rss_mb"], 0),
-             "resident set of a worker process, Python and numba included"),
-            (f"{n} aircraft, MPC: decisions without any feasible candidate (fallbacks)", "-",
-             f"{s['fallbacks']} of {s['decisions']}",
-             "the candidate that stayed feasible longest is flown, and its breach is real"),
+            (f"converging-{n}, NF alone, no wind: aircraft that arrive; losses of separation", "all; 0",
+             f"{nf['arrived']}/{n}; {nf['los_count']}", ""),
+            (f"converging-{n}, NF alone, no wind: minimum separation (nm)", "22" if n == 4 else "-",
+             _fmt(nf["min_separation_nm"]), "note 1"),
+            (f"converging-{n}, NF alone, no wind: airspeed range (kt); steps outside the envelope", "-",
+             f"{_fmt(low, 0)} .. {_fmt(high, 0)}; {100 * nf['envelope_violation_fraction']:.1f} %",
+             "the NF alone has no envelope"),
         ]
     rows += [
-        ("4 aircraft, NF alone, no wind: all arrive, no loss of separation", "yes",
-         f"{nf4['arrived']}/4 arrive, {nf4['los_count']} losses", ""),
-        ("4 aircraft, NF alone, no wind: minimum separation (nm)", "22", _fmt(nf4["min_separation_nm"]),
-         "short-range proximity function, see note 2"),
-        ("4 aircraft, NF alone: airspeed decays toward zero on the approach", "yes",
-         "yes: " + ", ".join(f"{v:.0f}" for v in nf4["airspeed_at_arrival_kt"]) + " kt at arrival", ""),
-        ("6 aircraft, NF alone, no wind: roundabout radius (nm)", "about 190", _fmt(nf6["roundabout_radius_nm"]),
-         "short-range proximity function, see note 2"),
-        ("4 aircraft, NF alone, wind σ = 5.17 m/s: runs with an aircraft that never arrives", "some",
-         f"{nfw['runs_with_an_aircraft_that_never_arrives']}/{nfw['runs']}, stranded a median "
-         f"{_fmt(nfw['stall_distance_nm']['median'])} nm short", ""),
-        ("4 aircraft, NF alone, wind σ = 5.17 m/s: runs with a loss of separation", "-",
-         f"{nfw['runs_with_a_loss_of_separation']}/{nfw['runs']}",
-         "the NF's collision avoidance assumes the motion it commands; a wind it cannot see breaks it"),
+        ("converging-4, NF alone: airspeed decays toward zero on the approach", "yes",
+         ", ".join(f"{v:.0f}" for v in nf4["airspeed_at_arrival_kt"]) + " kt on the last step", ""),
+        ("converging-6, NF alone, no wind: roundabout radius (nm)", "about 190", _fmt(nf6["roundabout_radius_nm"]),
+         "closest approach to the centre, mean over aircraft; note 1"),
+        (f"converging-4, NF alone, wind σ = {nfw['wind_sigma_mps']} m/s: runs with an aircraft that never arrives",
+         "some", f"{nfw['runs_with_an_aircraft_that_never_arrives']}/{nfw['runs']}",
+         f"{nfw['aircraft_never_arriving']} aircraft, a median {_fmt(nfw['stall_distance_nm']['median'])} nm short"
+         if nfw["aircraft_never_arriving"] else ""),
+        (f"converging-4, NF alone, wind σ = {nfw['wind_sigma_mps']} m/s: runs with a loss of separation", "-",
+         f"{nfw['runs_with_a_loss_of_separation']}/{nfw['runs']}", ""),
     ]
+    return rows
+
+
+def summary_paragraph(results: dict[str, Any]) -> str:
+    """What the README says about the results: every figure from the table."""
+    parts = []
+    for scenario in MPC_STUDIES:
+        s = results["safety"][scenario]
+        runs = s["runs"]
+        text = (
+            f"{scenario}: every aircraft home in {s['runs_all_home']}/{runs} runs, a loss of separation in "
+            f"{s['runs_with_los']}, a step outside the envelope in {s['runs_outside_envelope']}"
+        )
+        if s["runs_outside_envelope"]:
+            text += f" (worst excursion {s['worst_excursion_kt']:.0f} kt)"
+        text += f", {_count(s['fallbacks'], 'fallback')}"
+        parts.append(text)
+    nf4, nf6 = results["nf4"], results["nf6"]
+    return (
+        f"The MPC under wind (σ = {WIND_SIGMA_MPS} m/s, seeds 0..{results['runs'] - 1}): " + "; ".join(parts) + ". "
+        f"The NF alone without wind keeps a minimum separation of {_fmt(nf4['min_separation_nm'])} nm with 4 "
+        f"aircraft (paper 22) and {_fmt(nf6['min_separation_nm'])} nm with 6 ({nf6['los_count']} pairs losing "
+        f"separation), and circles at {_fmt(nf6['roundabout_radius_nm'])} nm (paper about 190)."
+    )
+
+
+def marked_blocks(text: str) -> dict[str, str]:
+    """The ``<!-- begin NAME -->`` … ``<!-- end NAME -->`` blocks of a text, by name."""
+    return {m.group("name"): m.group(0) for m in _BLOCK.finditer(text)}
+
+
+def replace_block(text: str, name: str, body: str) -> str | None:
+    """``text`` with block ``name``'s content replaced by ``body``; None if it has no such block."""
+    pattern = re.compile(rf"<!-- begin {re.escape(name)} -->.*?<!-- end {re.escape(name)} -->", re.S)
+    if not pattern.search(text):
+        return None
+    return pattern.sub(lambda _: f"<!-- begin {name} -->\n{body}\n<!-- end {name} -->", text, count=1)
+
+
+def write_report(path: Path, results: dict[str, Any]) -> None:
+    """Write the table; blocks that other scripts wrote between markers in the old report
+    are kept, after the generated part."""
     config = SimConfig()
+    rows = []
+    for scenario in MPC_STUDIES:
+        rows += mpc_rows(scenario, results["mpc"][scenario], results["safety"][scenario])
+    rows += nf_rows(results["nf4"], results["nf6"], results["nf_wind"])
+    reused = {k: v for k, v in results["reused"].items() if v}
+    reuse_text = (
+        "Runs reused from earlier invocations of the same build: "
+        + ", ".join(f"{k} {v}" for k, v in reused.items()) + "."
+        if reused else "No run was reused: every run was flown by this invocation."
+    )
     lines = [
         "# Reproduction of the paper's section IV",
         "",
-        "Generated by `atc-nf reproduce --runs "
-        f"{results['runs']}` from fresh runs (seeds 0..{results['runs'] - 1}, wind σ = {WIND_SIGMA_MPS} m/s, "
-        f"MPC at the paper's settings: T = 5 min, N = 4, K = 1000; integration step {config.dt_s:g} s; "
-        f"arrival within {config.arrival_tolerance_nm:g} nm). Figures are in `{results['figures']}/`.",
+        f"Generated by `atc-nf reproduce --runs {results['runs']}`: every MPC study flies seeds "
+        f"0..{results['runs'] - 1} ({results['runs']} runs per scenario; converging-N is the paper's encounter, "
+        f"random-N a seeded random crossing encounter per seed) under a hidden wind of σ = {WIND_SIGMA_MPS} m/s "
+        f"per component, with the MPC at its default settings (`baselines.MPCSettings`); integration step "
+        f"{config.dt_s:g} s, arrival within {config.arrival_tolerance_nm:g} nm, time limit "
+        f"{MAX_EPISODE_S / 60:.0f} min. The NF-alone rows fly seed 0 without wind, and "
+        f"{results['nf_wind']['runs']} seeds under wind. Every run was flown by build "
+        f"`{results['build']}` (`atc_nf_env.build.fingerprint()`: a hash of the sources that fly a run and of the "
+        f"Python, NumPy and numba versions). {reuse_text} Figures are in `{results['figures']}/`.",
+        "",
+        "## In short",
+        "",
+        results["summary"],
+        "",
+        "## The table",
         "",
         "| claim | paper | ours | note |",
         "|---|---|---|---|",
@@ -160,32 +381,36 @@ def write_report(path: Path, results: dict[str, Any]) -> None:
         "",
         "Notes.",
         "",
-        "1. Holding orbits. At a waypoint switch the NF law commands reverse airspeed when the new",
-        "   waypoint lies more than 90° off the heading (u = −sgn(P) F with P > 0), so a candidate",
-        "   that turns an aircraft back toward a destination it has just missed is infeasible",
-        "   when the envelope is checked at every integration step. An aircraft that passes its",
-        "   destination outside Δ then circles it. With the paper's check at the sampling",
-        "   instants only (`--constraint-check sampling-instants`) every aircraft arrives, but",
-        "   the airspeed leaves the envelope between the instants.",
-        "2. Proximity function. Airspeed goes with ‖∇Φ‖², so a long-range repulsion moves it out",
-        "   of the envelope whenever aircraft pass within tens of nm. Our G_i senses neighbours",
-        "   within 12 nm so that the MPC can bring aircraft 11.5 nm apart inside the envelope, as",
-        "   the paper's MPC does; the NF alone therefore keeps less separation and circles",
-        "   tighter than the paper's NF, whose interactions reach ~190 nm.",
-        "3. Compute time. One run is one process on one core; the paper's figures are for a",
-        "   2008 dual-core machine and an implementation we do not know. The studies ran two",
-        "   workers on the 2 cores while other work shared the machine: `BENCHMARKS.md` has",
-        "   episode times measured alone.",
-        "4. Prediction. The MPC never sees the wind: it predicts with its own estimate,",
-        "   which starts at zero and is corrected from the observed drift after every period,",
-        "   so a prediction can miss a breach that the real, windy flight then makes.",
-        "5. Mean airspeed. 454 kt is what the NF commands 100 nm from its waypoint; within a",
-        "   period the waypoint comes to ~60 nm, where the calibrated NF flies slower",
-        "   (406-472 kt over the region, `python -m atc_nf_env.calibration`), so the mean over",
-        "   the flight sits below 454 kt.",
+        f"1. Proximity function. Our G_i senses neighbours within {config.sensing_radius_nm:g} nm and concentrates",
+        f"   its repulsion inside {config.barrier_nm:g} nm (`SimConfig`); the paper's NF interacts over",
+        "   the whole encounter. Airspeed goes with ‖∇Φ‖², so the range of G_i sets both the NF",
+        "   alone's separation and roundabout and how far the repulsion moves the airspeed.",
+        "2. Prediction. The MPC never sees the wind: it predicts with its own estimate, corrected",
+        "   from the observed drift after every period, so the real flight of a decision whose",
+        "   predicted flight was feasible can still leave the envelope. A fallback decision is one",
+        "   where no candidate's predicted flight was feasible.",
+        "3. Compute time. One run is one process on one core, mean over runs; the studies ran",
+        "   two workers on the 2 cores of a machine that other work shared. `BENCHMARKS.md` has",
+        "   episode times measured alone. The paper's figures are for a 2008 machine and an",
+        "   implementation we do not know.",
         "",
     ]
-    path.write_text("\n".join(lines))
+    text = "\n".join(lines)
+    if path.exists():
+        for block in marked_blocks(path.read_text()).values():
+            text += "\n" + block + "\n"
+    path.write_text(text)
+
+
+def update_readme(path: Path, summary: str) -> bool:
+    """Put the summary paragraph into the README's marked block; False if it has none."""
+    if not path.exists():
+        return False
+    text = replace_block(path.read_text(), SUMMARY_BLOCK, summary)
+    if text is None:
+        return False
+    path.write_text(text)
+    return True
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -194,37 +419,54 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="atc-nf reproduce", formatter_class=HelpFormatter,
                                      description="Reproduce the paper's section IV: figures and table.")
     parser.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs per MPC study")
+    parser.add_argument("--nf-wind-runs", type=int, default=100, help="runs of the NF alone under wind")
     parser.add_argument("--out", type=Path, default=Path("out/reproduction"), help="folder for the runs (JSON lines)")
     parser.add_argument("--figures", type=Path, default=Path("docs/figures"), help="folder for the figures")
     parser.add_argument("--report", type=Path, default=Path("REPRODUCTION.md"), help="the table")
+    parser.add_argument("--readme", type=Path, default=Path("README.md"),
+                        help=f"README whose <!-- begin {SUMMARY_BLOCK} --> block gets the summary")
     parser.add_argument("--workers", type=int, help="worker processes (default: all cores)")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     if args.runs < 1:
         parser.error(f"--runs {args.runs}: must be >= 1")
+    if args.nf_wind_runs < 1:
+        parser.error(f"--nf-wind-runs {args.nf_wind_runs}: must be >= 1")
+    if args.workers is not None and args.workers < 1:
+        parser.error(f"--workers {args.workers}: must be >= 1")
     figures = args.figures
     figures.mkdir(parents=True, exist_ok=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    results: dict[str, Any] = {"runs": args.runs, "figures": str(figures)}
+    results: dict[str, Any] = {"runs": args.runs, "figures": str(figures), "build": build.fingerprint(),
+                               "mpc": {}, "safety": {}, "reused": {}}
     results["nf4"], _ = nf_alone.windless(4, figures)
     results["nf6"], _ = nf_alone.windless(6, figures)
-    results["nf_wind"] = nf_alone.windy(min(args.runs, 100), figures)
-    for n, fig in ((4, 4), (6, 9)):
-        summary, records = mpc_study(n, args.runs, args.out, args.workers, not args.no_progress)
-        results[f"mpc{n}"] = summary
-        results[f"mean_airspeed{n}"] = mean_airspeed(records)
-        breached = [r for r in records if r["envelope_violation_fraction"] > 0]
-        results[f"breach_runs{n}"] = len(breached)
-        results[f"breach_runs_with_fallback{n}"] = sum(1 for r in breached if r["policy_info"]["fallbacks"])
-        plot_airspeed_bands(records, figures / f"mpc_converging{n}_airspeed_bands.png",
-                            f"MPC, {n} aircraft, {len(records)} runs: mean and min-max airspeed (paper Fig. {fig})")
+    results["nf_wind"] = nf_alone.windy(args.nf_wind_runs, figures)
+    for scenario, paper in MPC_STUDIES.items():
+        path = args.out / f"mpc_{scenario.replace('-', '')}.jsonl"
+        summary, records, reused = fly_study(mpc_study_of(scenario), args.runs, path, args.workers,
+                                             not args.no_progress)
+        results["mpc"][scenario] = summary
+        results["safety"][scenario] = run_safety(records)
+        results["reused"][scenario] = reused
+        if paper is None:
+            continue
+        n = records[0]["n_aircraft"]
+        plot_airspeed_bands(
+            records, figures / f"mpc_converging{n}_airspeed_bands.png",
+            f"MPC, {n} aircraft, {len(records)} runs: mean and min-max airspeed over every 5-s step, "
+            f"per minute (paper Fig. {paper['band_figure']})",
+        )
         example = run_episode(MCMCMPC(), converging(n), seed=0, wind_sigma_mps=WIND_SIGMA_MPS, record_every=1)
         plot_trajectories(example, figures / f"mpc_converging{n}_trajectories.png",
-                          title=f"MPC, {n} aircraft, seed 0 (paper Fig. {6 if n == 4 else 8})")
+                          title=f"MPC, {n} aircraft, seed 0 (paper Fig. {paper['trajectory_figure']})")
         plot_airspeed(example, figures / f"mpc_converging{n}_airspeed.png",
                       title=f"MPC, {n} aircraft, seed 0: airspeed")
+    results["summary"] = summary_paragraph(results)
     (args.out / "reproduction.json").write_text(json.dumps(results, indent=2) + "\n")
     write_report(args.report, results)
+    if not update_readme(args.readme, results["summary"]):
+        print(f"{args.readme}: no <!-- begin {SUMMARY_BLOCK} --> block; README not updated", file=sys.stderr)
     print(args.report.read_text())
     return 0
 
