@@ -129,3 +129,17 @@ def test_marked_blocks_survive_and_the_readme_block_is_replaced(tmp_path: Path) 
                                  "<!-- end reproduction-summary -->\ny\n"
     assert not reproduce.update_readme(tmp_path / "missing.md", "z")
 
+
+
+def test_mpc_rows_quote_the_runs_and_the_papers_figures() -> None:
+    records = [_record(0), _record(1, arrived=[True, False], success=False, distance_short_nm=[None, 21.0])]
+    summary = {"min_separation_nm": {"min": 11.0, "mean": 12.0, "max": 13.0},
+               "flight_time_min": {"mean": 66.0, "max": 70.0}, "wall_s_per_run": {"mean": 1.5},
+               "peak_rss_mb": 200.0, "success_rate_ci95": [0.1, 0.9]}
+    rows = {claim.split(": ", 1)[1]: (paper, ours, note) for claim, paper, ours, note in
+            reproduce.mpc_rows("converging-4", summary, reproduce.run_safety(records))}
+    assert rows["runs where every aircraft arrives"][:2] == ("1000/1000", "1/2 (95 % interval 10.0 - 90.0 %)")
+    assert rows["runs with a loss of separation (< 5 nm)"][1] == "0/2"
+    assert rows["runs with an integration step outside [366, 540] kt"][1:] == ("0/2", "checked at every integration step")
+    random_rows = reproduce.mpc_rows("random-6", summary, reproduce.run_safety(records))
+    assert all(paper == "-" for _, paper, _, _ in random_rows)

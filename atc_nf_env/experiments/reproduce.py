@@ -214,6 +214,11 @@ def _count(n: int, one: str, many: str | None = None) -> str:
     return f"{n} {one if n == 1 else (many or one + 's')}"
 
 
+def _interval(summary: dict[str, Any]) -> str:
+    ci = summary.get("success_rate_ci95")
+    return f" (95 % interval {100 * ci[0]:.1f} - {100 * ci[1]:.1f} %)" if ci else ""
+
+
 def arrival_note(s: dict[str, Any]) -> str:
     if s["aircraft_not_home"] == 0:
         return ""
@@ -248,8 +253,8 @@ def mpc_rows(scenario: str, summary: dict[str, Any], s: dict[str, Any]) -> list[
     label = f"{scenario}, MPC under wind"
     sep = summary["min_separation_nm"]
     rows = [
-        (f"{label}: runs where every aircraft arrives", paper.get("arrive", "-"), f"{s['runs_all_home']}/{runs}",
-         arrival_note(s)),
+        (f"{label}: runs where every aircraft arrives", paper.get("arrive", "-"),
+         f"{s['runs_all_home']}/{runs}" + _interval(summary), arrival_note(s)),
         (f"{label}: runs with a loss of separation (< 5 nm)", "0" if paper else "-", f"{s['runs_with_los']}/{runs}",
          f"{s['los_pairs']} pairs" if s["los_pairs"] else ""),
         (f"{label}: minimum separation over runs (nm)", paper.get("separation_nm", "-"),
