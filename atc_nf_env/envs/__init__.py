@@ -14,11 +14,17 @@ Every environment takes the same keyword arguments, checked here (``EnvConfig``)
     n_neighbours        K nearest neighbours in each observation (default 4).
     max_episode_minutes time limit, min (default 180); truncation after
                         ceil(limit / 5 min) decisions.
+    max_cycles          decision periods (5 min each) before truncation, PettingZoo's
+                        name for an episode's length (default None: from
+                        max_episode_minutes). Give one of the two, not both.
     expose_wind         put the true wind in observations, state and info (default False).
     action_mapping      ActionMapping or dict (default 100 ± 40 nm, ±90°).
     reward_weights      RewardWeights or dict (see ``atc_nf_env.envs.rewards``).
     config              SimConfig: NF gains and integrator (the calibrated defaults).
     render_size_px      side of the rendered square frame, pixels (default 512).
+
+Unknown keyword arguments raise TypeError (as Python does for a function), bad values
+ValueError; both name what is allowed.
 
 Units at the API: nm, kt, s (the wind's σ in m/s, as in the paper). One env step is
 one decision period T = 300 s flown by the batched kernel.
@@ -26,6 +32,7 @@ one decision period T = 300 s flown by the batched kernel.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from dataclasses import dataclass, field, fields
@@ -58,6 +65,7 @@ class EnvConfig:
     max_aircraft: int | None = None
     n_neighbours: int = 4
     max_episode_minutes: float = MAX_EPISODE_MINUTES
+    max_cycles: int | None = None
     expose_wind: bool = False
     action_mapping: ActionMapping = field(default_factory=ActionMapping)
     reward_weights: RewardWeights = field(default_factory=RewardWeights)
@@ -66,12 +74,23 @@ class EnvConfig:
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any], where: str) -> "EnvConfig":
-        """Validate keyword arguments; ValueError naming the bad one and what is allowed."""
+        """Validate keyword arguments: TypeError for an unknown one, ValueError for a bad
+        value, each naming what is allowed."""
         allowed = [f.name for f in fields(cls)]
         unknown = sorted(set(kwargs) - set(allowed))
         if unknown:
-            raise ValueError(f"{where}: unknown keyword argument(s) {unknown}; allowed: {allowed}")
-        values = dict(kwargs)
+            # Python's own wording, which clients match to drop arguments an env does not
+            # take (TorchRL's GymEnv retries without ``frameskip``).
+            more = f" (and {unknown[1:]})" if len(unknown) > 1 else ""
+            raise TypeError(
+                f"{where}: got an unexpected keyword argument {unknown[0]!r}{more}; allowed: {allowed}"
+            )
+        if kwargs.get("max_cycles") is not None and kwargs.get("max_episode_minutes") is not None:
+            raise ValueError(
+                f"{where}: max_cycles = {kwargs['max_cycles']!r} and max_episode_minutes = "
+                f"{kwargs['max_episode_minutes']!r} both set the episode's length; give one of them"
+            )
+        values = {key: value for key, value in kwargs.items() if not (key == "max_episode_minutes" and value is None)}
         values["action_mapping"] = ActionMapping.coerce(values.get("action_mapping"))
         values["reward_weights"] = RewardWeights.coerce(values.get("reward_weights"))
         config = values.get("config")
@@ -96,15 +115,20 @@ class EnvConfig:
         minutes = self.max_episode_minutes
         if isinstance(minutes, bool) or not isinstance(minutes, (int, float)) or not (math.isfinite(minutes) and minutes > 0):
             raise ValueError(f"max_episode_minutes = {minutes!r}: must be a finite number > 0")
+        cycles = self.max_cycles
+        if cycles is not None and (isinstance(cycles, bool) or not isinstance(cycles, (int, np.integer)) or cycles < 1):
+            raise ValueError(f"max_cycles = {cycles!r}: must be an integer >= 1 (decision periods of 5 min) or None")
         if not isinstance(self.expose_wind, (bool, np.bool_)):
             raise ValueError(f"expose_wind = {self.expose_wind!r}: must be True or False")
         size = self.render_size_px
         if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 64 <= size <= 4096:
             raise ValueError(f"render_size_px = {size!r}: must be an integer in [64, 4096]")
 
-    @property
+    @functools.cached_property
     def max_decisions(self) -> int:
-        """Decisions before truncation: ceil(time limit / T)."""
+        """Decisions before truncation: ``max_cycles``, else ceil(time limit / T)."""
+        if self.max_cycles is not None:
+            return int(self.max_cycles)
         return max(1, math.ceil(self.max_episode_minutes * 60.0 / DECISION_PERIOD_S - 1e-9))
 
 

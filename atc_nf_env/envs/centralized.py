@@ -12,7 +12,8 @@ from gymnasium import spaces
 from atc_nf_env.envs import EnvConfig, ScenarioSource, draw_episode_seed, episode_wind
 from atc_nf_env.envs.actions import waypoints_for_state
 from atc_nf_env.envs.observations import ObservationSpec
-from atc_nf_env.envs.rewards import StepOutcome, step_outcome
+from atc_nf_env import kernel
+from atc_nf_env.envs.rewards import StepOutcome, period_outcome, reward_weight_vector
 from atc_nf_env.kernel import (
     ARRIVED,
     FLYING,
@@ -26,6 +27,7 @@ from atc_nf_env.kernel import (
     S_WP_Y,
     S_X,
     S_Y,
+    KernelScratch,
     Trace,
 )
 from atc_nf_env.simulation import Simulation
@@ -35,12 +37,32 @@ from atc_nf_env.units import DECISION_PERIOD_S
 RENDER_RECORD_EVERY: int = 6
 
 
+#: Per-aircraft info keys of every env, in order (the same at reset and at every step).
+AIRCRAFT_INFO_KEYS: tuple[str, ...] = (
+    "airspeed_kt",
+    "airspeed_min_kt",
+    "airspeed_max_kt",
+    "distance_to_go_nm",
+    "nearest_nm",
+    "los_count",
+    "envelope_violation",
+    "envelope_violation_fraction",
+    "action_clipped",
+    "arrived",
+    "left_workspace",
+    "aircraft_reward",
+    "waypoint_nm",
+)
+
+
 class EncounterWorld:
     """One world (B = 1) of an environment: a ``Simulation`` flown one decision period
     (T = 300 s) per step, with the episode's bookkeeping (seed, time limit, rewards).
 
     Used by the centralized Gymnasium env and the PettingZoo env; the vector env runs the
-    same logic over B worlds in one kernel call (``atc_nf_env.envs.vector``).
+    same logic over B worlds in one kernel call (``atc_nf_env.envs.vector``). Without a
+    render mode the world calls the kernel directly (``Simulation.stats`` is then not
+    kept: the infos carry the same figures step by step).
     """
 
     def __init__(self, cfg: EnvConfig, where: str) -> None:
@@ -52,7 +74,13 @@ class EncounterWorld:
         self.sim: Simulation | None = None
         self.episode_seed: int = -1
         self.decisions = 0
+        self.max_decisions = cfg.max_decisions
+        self._limit_s = self.max_decisions * DECISION_PERIOD_S
+        self._reward_weights = reward_weight_vector(cfg.reward_weights)
+        self._scratch = KernelScratch()
+        self._dt_s = float(cfg.config.dt_s)
         self.last_waypoints = np.zeros((self.n_aircraft, 2))
+        self._last: tuple[StepOutcome, Trace, np.ndarray] | None = None
 
     # ----------------------------------------------------------------- episode
 
@@ -64,16 +92,21 @@ class EncounterWorld:
         scenario = self.source.scenario(episode_seed)
         wind = episode_wind(episode_seed, self.cfg.wind_sigma)
         self.sim = Simulation(scenario, config=self.cfg.config, wind_kt=wind, record_every=self.record_every)
+        self._wind = self.sim.wind_kt[None].copy()
         self.episode_seed = int(episode_seed)
         self.decisions = 0
-        self.last_waypoints = self.sim.state[0, :, [S_WP_X, S_WP_Y]].T.copy()
+        state = self.sim.state
+        self.last_waypoints = state[0, :, [S_WP_X, S_WP_Y]].T.copy()
+        self._flying = state[:, :, S_STATUS] == FLYING
+        self._distance = np.hypot(state[:, :, S_DEST_X] - state[:, :, S_X], state[:, :, S_DEST_Y] - state[:, :, S_Y])
+        self._last = None
         self._refresh()
 
     def _refresh(self) -> None:
         """Observe the current state once (observations and nearest distances)."""
         assert self.sim is not None
         obs, nearest = self.obs_spec.observe_with_nearest(
-            self.sim.state, np.array([self.time_fraction]), self.sim.wind_kt[None], self.n_slots
+            self.sim.state, np.array([self.time_fraction]), self._wind, self.n_slots
         )
         self._obs = obs[0]
         self._nearest = nearest[0, : self.n_aircraft]
@@ -85,23 +118,27 @@ class EncounterWorld:
     @property
     def flying(self) -> np.ndarray:
         """(n,) bool."""
-        assert self.sim is not None
-        return self.sim.status == FLYING
+        return self._flying[0]
 
     @property
     def time_fraction(self) -> float:
         assert self.sim is not None
-        return min(1.0, self.sim.time_s / (self.cfg.max_decisions * DECISION_PERIOD_S))
+        return min(1.0, self.sim.time_s / self._limit_s)
 
     @property
     def truncated(self) -> bool:
         """The time limit has been reached."""
-        return self.decisions >= self.cfg.max_decisions
+        return self.decisions >= self.max_decisions
+
+    @property
+    def done(self) -> bool:
+        """Every aircraft has arrived or left."""
+        return not self._flying.any()
 
     @property
     def over(self) -> bool:
         """Every aircraft has arrived or left, or the time limit has been reached."""
-        return self.sim is not None and (self.sim.done or self.truncated)
+        return self.sim is not None and (self.done or self.truncated)
 
     def observe(self) -> np.ndarray:
         """(n_slots, obs_dim) float32 (a fresh array after every reset and step)."""
@@ -110,71 +147,85 @@ class EncounterWorld:
     def global_state(self) -> np.ndarray:
         assert self.sim is not None
         return self.obs_spec.global_state(
-            self.sim.state, np.array([self.time_fraction]), self.sim.wind_kt[None], self.n_slots
+            self.sim.state, np.array([self.time_fraction]), self._wind, self.n_slots
         )[0]
 
-    def step(self, actions: np.ndarray) -> tuple[StepOutcome, Trace]:
-        """Fly one decision period with clipped actions (n, 2) (rows of aircraft not flying
-        are ignored)."""
+    def step(self, actions: np.ndarray, clipped: np.ndarray) -> tuple[StepOutcome, Trace]:
+        """Fly one decision period with finite actions (n, 2) (clipped to [-1, 1] here;
+        rows of aircraft not flying are ignored); ``clipped`` (n,) says which were
+        outside the box (for the infos)."""
         sim = self.sim
         assert sim is not None
-        state = sim.state[0]
-        flying_before = state[:, S_STATUS] == FLYING
-        distance_before = np.hypot(state[:, S_DEST_X] - state[:, S_X], state[:, S_DEST_Y] - state[:, S_Y])
+        state = sim.state
+        flying_before = self._flying
         waypoints = waypoints_for_state(
-            actions[None], sim.state, self.cfg.action_mapping,
+            actions[None], state, self.cfg.action_mapping,
             sim.scenario.workspace_radius_nm, self.cfg.config.aircraft_radius_nm,
-        )[0]
-        self.last_waypoints = waypoints
-        trace = sim.advance(waypoints, DECISION_PERIOD_S)
-        self.decisions += 1
-        state = sim.state[0]
-        distance_after = np.hypot(state[:, S_DEST_X] - state[:, S_X], state[:, S_DEST_Y] - state[:, S_Y])
-        self._refresh()
-        outcome = step_outcome(
-            flying_before[None],
-            distance_before[None],
-            distance_after[None],
-            (state[:, S_STATUS] == ARRIVED)[None],
-            (state[:, S_STATUS] == LEFT)[None],
-            trace,
-            self.cfg.reward_weights,
         )
+        self.last_waypoints = waypoints[0]
+        if self.record_every:
+            trace = sim.advance(waypoints[0], DECISION_PERIOD_S)
+        else:
+            trace = kernel.advance(state, waypoints, self._wind, DECISION_PERIOD_S, sim.params, scratch=self._scratch)
+            sim.time_s += float(trace.steps_done[0]) * self._dt_s
+        self.decisions += 1
+        outcome = period_outcome(state, flying_before, self._distance, trace, self._reward_weights)
+        self._flying = state[:, :, S_STATUS] == FLYING
+        self._distance = outcome.distance_to_go_nm
+        self._last = (outcome, trace, clipped)
+        self._refresh()
         return outcome, trace
 
     # ----------------------------------------------------------------- infos
 
-    def reset_info_arrays(self) -> dict[str, Any]:
-        assert self.sim is not None
-        state = self.sim.state[0]
-        return {
-            "airspeed_kt": state[:, S_AIRSPEED].copy(),
-            "distance_to_go_nm": np.hypot(state[:, S_DEST_X] - state[:, S_X], state[:, S_DEST_Y] - state[:, S_Y]),
-            "nearest_nm": self._nearest.copy(),
-        }
-
-    def step_info_arrays(self, outcome: StepOutcome, trace: Trace, clipped: np.ndarray) -> dict[str, Any]:
-        """Per-aircraft (n,) arrays and world scalars describing the last step."""
+    def info_arrays(self) -> tuple[dict[str, np.ndarray], float]:
+        """Per-aircraft arrays (n,) (``waypoint_nm`` (n, 2)) keyed by ``AIRCRAFT_INFO_KEYS``,
+        and the smallest separation, nm, describing the last step; after a reset the same
+        keys, shapes and dtypes with neutral values (nothing clipped, violated or lost; the
+        airspeed range and the separation those of the initial state; reward 0)."""
         assert self.sim is not None
         state = self.sim.state[0]
         n = self.n_aircraft
+        status = state[:, S_STATUS]
+        airspeed = state[:, S_AIRSPEED].copy()
+        if self._last is None:
+            flying = self._flying[0]
+            nearest = self._nearest[flying]
+            min_separation = float(nearest.min()) if nearest.size else np.inf
+            arrays = {
+                "airspeed_kt": airspeed,
+                "airspeed_min_kt": airspeed.copy(),
+                "airspeed_max_kt": airspeed.copy(),
+                "distance_to_go_nm": self._distance[0].copy(),
+                "nearest_nm": self._nearest.copy(),
+                "los_count": np.zeros(n, dtype=np.int64),
+                "envelope_violation": np.zeros(n, dtype=bool),
+                "envelope_violation_fraction": np.zeros(n),
+                "action_clipped": np.zeros(n, dtype=bool),
+                "arrived": status == ARRIVED,
+                "left_workspace": status == LEFT,
+                "aircraft_reward": np.zeros(n),
+                "waypoint_nm": self.last_waypoints.copy(),
+            }
+            return arrays, min_separation
+        outcome, trace, clipped = self._last
         min_sep = float(trace.min_separation_nm[0])
-        return {
-            "airspeed_kt": state[:, S_AIRSPEED].copy(),
-            "airspeed_min_kt": trace.min_airspeed_kt[0, :n].copy(),
-            "airspeed_max_kt": trace.max_airspeed_kt[0, :n].copy(),
-            "distance_to_go_nm": outcome.distance_to_go_nm[0],
-            "min_separation_nm": np.inf if min_sep >= NO_PAIR_SEPARATION_NM else min_sep,
-            "nearest_nm": self._nearest.copy(),
+        arrays = {
+            "airspeed_kt": airspeed,
+            "airspeed_min_kt": trace.min_airspeed_kt[0, :n],
+            "airspeed_max_kt": trace.max_airspeed_kt[0, :n],
+            "distance_to_go_nm": outcome.distance_to_go_nm[0].copy(),
+            "nearest_nm": self._nearest,
             "los_count": outcome.los_count[0],
             "envelope_violation": trace.violation_steps[0, :n] > 0,
             "envelope_violation_fraction": outcome.violation_fraction[0],
             "action_clipped": clipped & outcome.flew[0],
-            "arrived": state[:, S_STATUS] == ARRIVED,
-            "left_workspace": state[:, S_STATUS] == LEFT,
-            "waypoint_nm": self.last_waypoints.copy(),
-            "reward": outcome.rewards[0],
+            "arrived": status == ARRIVED,
+            "left_workspace": status == LEFT,
+            "aircraft_reward": outcome.rewards[0],
+            "waypoint_nm": self.last_waypoints,
         }
+        return arrays, (np.inf if min_sep >= NO_PAIR_SEPARATION_NM else min_sep)
 
 
 def validate_step_actions(action: Any, shape: tuple[int, ...], where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -249,29 +300,32 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
 
     Terminated when every aircraft has arrived (within Δ =
     ``SimConfig.arrival_tolerance_nm`` of its destination, checked at every integration
-    step) or left the workspace. Truncated after ceil(``max_episode_minutes`` / 5)
-    decisions (default 180 min: 36 steps). Stepping after the end raises ValueError
+    step) or left the workspace. Truncated after ``max_cycles`` decisions, or
+    ceil(``max_episode_minutes`` / 5) (default 180 min: 36 steps). Stepping after the end raises ValueError
     (call ``reset``).
 
     ## Arguments
 
     ``gym.make("atc_nf_env/Encounter-v0", scenario="converging-4", wind_sigma=5.17,
     render_mode=None, max_aircraft=None, n_neighbours=4, max_episode_minutes=180,
-    expose_wind=False, action_mapping=None, reward_weights=None, config=None,
-    render_size_px=512)``; see ``atc_nf_env.envs`` for each. Unknown arguments raise
-    ValueError listing the allowed ones. ``gym.make_vec(..., num_envs=B)`` builds the
+    max_cycles=None, expose_wind=False, action_mapping=None, reward_weights=None,
+    config=None, render_size_px=512)``; see ``atc_nf_env.envs`` for each. Unknown
+    arguments raise TypeError listing the allowed ones. ``gym.make_vec(..., num_envs=B)`` builds the
     native vector env (B worlds in one kernel call).
 
     ## Info
 
-    Per-aircraft arrays (M,): ``airspeed_kt`` (last integration step), ``airspeed_min_kt``,
-    ``airspeed_max_kt`` (over the step), ``distance_to_go_nm``, ``nearest_nm``
-    (to the nearest aircraft still flying), ``los_count``, ``envelope_violation``,
-    ``envelope_violation_fraction``, ``action_clipped``, ``arrived``, ``left_workspace``,
-    ``alive``, ``present``, ``waypoint_nm`` (M, 2), ``reward``; scalars
-    ``min_separation_nm`` (over every pair during the step; inf with fewer than two
-    aircraft flying), ``time_s``, ``episode_seed``, and ``wind_kt`` only with
-    ``expose_wind=True``.
+    The same keys, shapes and dtypes after ``reset`` and after every ``step`` (neutral
+    values at reset: nothing clipped or violated, reward 0, the airspeed range and the
+    separation those of the initial state). Per-aircraft arrays (M,): ``airspeed_kt``
+    (last integration step), ``airspeed_min_kt``, ``airspeed_max_kt`` (over the step),
+    ``distance_to_go_nm``, ``nearest_nm`` (to the nearest aircraft still flying),
+    ``los_count``, ``envelope_violation``, ``envelope_violation_fraction``,
+    ``action_clipped``, ``arrived``, ``left_workspace``, ``aircraft_reward`` (each
+    aircraft's share of the reward), ``waypoint_nm`` (M, 2), ``alive``, ``present``;
+    scalars ``min_separation_nm`` (over every pair during the step; inf with fewer than
+    two aircraft flying), ``time_s``, ``episode_seed``, and ``wind_kt`` only with
+    ``expose_wind=True``. No key shadows a standard one (``reward``, ``terminated``, ...).
 
     ## Version History
 
@@ -296,11 +350,9 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
         super().reset(seed=seed)
         episode_seed = int(seed) if seed is not None else draw_episode_seed(self.np_random)
         self.world.reset(episode_seed)
-        info = self._pad_info(self.world.reset_info_arrays())
-        info.update(self._world_info())
         if self.render_mode == "human":
             self.render()
-        return self.world.observe().reshape(-1), info
+        return self.world.observe().reshape(-1), self._info()
 
     def step(self, action: Any) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         world = self.world
@@ -313,57 +365,61 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
             )
         clipped_actions, clipped = validate_step_actions(action, (self.n_slots, 2), "atc_nf_env/Encounter-v0")
         n = world.n_aircraft
-        outcome, trace = world.step(clipped_actions[:n])
-        info = self._pad_info(world.step_info_arrays(outcome, trace, clipped[:n]))
-        info.update(self._world_info())
-        terminated = bool(world.sim.done)  # type: ignore[union-attr]
+        outcome, _ = world.step(clipped_actions[:n], clipped[:n])
+        terminated = world.done
         truncated = (not terminated) and world.truncated
         if self.render_mode == "human":
             self.render()
-        return world.observe().reshape(-1), float(outcome.rewards.sum()), terminated, truncated, info
+        return world.observe().reshape(-1), float(outcome.rewards.sum()), terminated, truncated, self._info()
 
-    def _pad_info(self, arrays: dict[str, Any]) -> dict[str, Any]:
-        m, n = self.n_slots, self.world.n_aircraft
-        info: dict[str, Any] = {}
-        for key, value in arrays.items():
-            if isinstance(value, np.ndarray) and value.shape[:1] == (n,):
-                padded = np.zeros((m, *value.shape[1:]), dtype=value.dtype)
-                if key == "nearest_nm":
-                    padded[:] = np.inf
+    def _info(self) -> dict[str, Any]:
+        world = self.world
+        arrays, min_separation = world.info_arrays()
+        m, n = self.n_slots, world.n_aircraft
+        info: dict[str, Any]
+        if m == n:
+            info = dict(arrays)
+            alive = world.flying.copy()
+            present = np.ones(m, dtype=bool)
+        else:
+            info = {}
+            for key, value in arrays.items():
+                padded = np.full((m, *value.shape[1:]), np.inf if key == "nearest_nm" else 0, dtype=value.dtype)
                 padded[:n] = value
                 info[key] = padded
-            else:
-                info[key] = value
-        return info
-
-    def _world_info(self) -> dict[str, Any]:
-        world = self.world
-        alive = np.zeros(self.n_slots, dtype=bool)
-        alive[: world.n_aircraft] = world.flying
-        present = np.zeros(self.n_slots, dtype=bool)
-        present[: world.n_aircraft] = True
-        info: dict[str, Any] = {
-            "alive": alive,
-            "present": present,
-            "time_s": float(world.sim.time_s),  # type: ignore[union-attr]
-            "episode_seed": world.episode_seed,
-        }
+            alive = np.zeros(m, dtype=bool)
+            alive[:n] = world.flying
+            present = np.zeros(m, dtype=bool)
+            present[:n] = True
+        info["min_separation_nm"] = min_separation
+        info["alive"] = alive
+        info["present"] = present
+        info["time_s"] = float(world.sim.time_s)  # type: ignore[union-attr]
+        info["episode_seed"] = world.episode_seed
         if self.cfg.expose_wind:
             info["wind_kt"] = world.sim.wind_kt.copy()  # type: ignore[union-attr]
         return info
 
-    def render(self) -> np.ndarray | None:
+    def render(self, mode: str | None = None) -> np.ndarray | None:
         """An (H, W, 3) uint8 frame for ``render_mode="rgb_array"``; draws into a window for
-        "human" (nothing without a display); None (with a warning) without a render mode."""
-        return render_world(self, self.world)
+        "human" (nothing without a display); None (with a warning) without a render mode.
+        ``mode`` (passed by some wrappers, e.g. RLlib's) must be None or the env's
+        ``render_mode``."""
+        return render_world(self, self.world, mode)
 
     def close(self) -> None:
         close_renderers(self)
         super().close()
 
 
-def render_world(owner: Any, world: EncounterWorld) -> np.ndarray | None:
-    """Render ``world`` for ``owner`` (an env with render_mode, _renderer and _viewer)."""
+def render_world(owner: Any, world: EncounterWorld, mode: str | None = None) -> np.ndarray | None:
+    """Render ``world`` for ``owner`` (an env with render_mode, _renderer and _viewer).
+    ``mode``, when given, must be the owner's render mode (it is fixed at construction)."""
+    if mode is not None and mode != owner.render_mode:
+        raise ValueError(
+            f"render(mode={mode!r}) on an env made with render_mode={owner.render_mode!r}: the render mode is "
+            f"set when the env is made; make it with render_mode={mode!r}, or call render() without a mode"
+        )
     if owner.render_mode is None:
         gym.logger.warn(
             "You are calling render method without specifying any render mode. "

@@ -10,12 +10,15 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
+from pettingzoo.utils.env_logger import EnvLogger
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
 from atc_nf_env.envs import EnvConfig, draw_episode_seed
-from atc_nf_env.envs.centralized import EncounterWorld, close_renderers, render_world, validate_step_actions
+from atc_nf_env.envs.centralized import AIRCRAFT_INFO_KEYS, EncounterWorld, close_renderers, render_world
 
 AGENT_PREFIX = "aircraft_"
+_SCALAR_INFO_KEYS = tuple(key for key in AIRCRAFT_INFO_KEYS if key != "waypoint_nm")
+_ROW_KEYS = (*_SCALAR_INFO_KEYS, "waypoint_nm")
 
 
 class ATCParallelEnv(ParallelEnv):
@@ -63,8 +66,12 @@ class ATCParallelEnv(ParallelEnv):
 
     An agent terminates when it arrives (within Δ = ``SimConfig.arrival_tolerance_nm`` of
     its destination, checked at every integration step) or leaves the workspace, and is
-    then removed from ``agents``. All remaining agents are truncated after ceil(``max_episode_minutes`` / 5) decisions
-    (default 180 min: 36 steps, room for the 6-aircraft encounter's ~70-90 min flights).
+    then removed from ``agents``. Every agent of the step is truncated after
+    ``max_cycles`` decisions, or ceil(``max_episode_minutes`` / 5) (default 180 min: 36
+    steps, room for the 6-aircraft encounter's ~70-90 min flights); one that arrives or
+    leaves on that very step is terminated and truncated, so the last step never mixes
+    agents only terminated with agents only truncated (RLlib's AEC wrapper ends an
+    episode only on all-terminated or all-truncated).
     Once no agent is left, ``step({})`` returns empty dicts (as PettingZoo's own
     conversion wrappers do; SuperSuit's ``black_death_v3`` relies on it), and a step with
     any action raises ValueError (call ``reset``).
@@ -72,20 +79,25 @@ class ATCParallelEnv(ParallelEnv):
     ## Arguments
 
     ``atc_nf_env.parallel_env(scenario="converging-4", wind_sigma=5.17, render_mode=None,
-    max_aircraft=None, n_neighbours=4, max_episode_minutes=180, expose_wind=False,
-    action_mapping=None, reward_weights=None, config=None, render_size_px=512)``: see
-    ``atc_nf_env.envs``. Unknown arguments raise ValueError listing the allowed ones.
+    max_aircraft=None, n_neighbours=4, max_episode_minutes=180, max_cycles=None,
+    expose_wind=False, action_mapping=None, reward_weights=None, config=None,
+    render_size_px=512)``: see ``atc_nf_env.envs``. Unknown arguments raise TypeError
+    listing the allowed ones.
 
     ## Info
 
-    Per agent after a step: ``airspeed_kt`` (last integration step), ``airspeed_min_kt``,
-    ``airspeed_max_kt`` (over the step), ``distance_to_go_nm``, ``min_separation_nm``
+    Per agent, the same keys and types after ``reset`` and after every ``step`` (libraries
+    such as TorchRL build their specs from the reset): ``airspeed_kt`` (last integration
+    step), ``airspeed_min_kt``, ``airspeed_max_kt`` (over the step), ``distance_to_go_nm``,
+    ``nearest_nm`` (this aircraft to the nearest one still flying, now), ``los_count``
+    (int), ``envelope_violation`` (bool, this step), ``envelope_violation_fraction``,
+    ``action_clipped``, ``arrived``, ``left_workspace`` (bools), ``aircraft_reward`` (the
+    agent's reward, as in ``rewards``), ``waypoint_nm`` ((2,) float64), ``min_separation_nm``
     (smallest distance between any two aircraft during the step, inf with fewer than two
-    flying), ``nearest_nm`` (this aircraft to the nearest one still flying, now),
-    ``los_count``, ``envelope_violation`` (bool, this step), ``envelope_violation_fraction``,
-    ``action_clipped``, ``arrived``, ``left_workspace``, ``waypoint_nm`` (2,), ``time_s``,
-    ``episode_seed``; ``wind_kt`` only with ``expose_wind=True``. After a reset:
-    ``airspeed_kt``, ``distance_to_go_nm``, ``nearest_nm``, ``time_s``, ``episode_seed``.
+    flying), ``time_s``, ``episode_seed`` (int); ``wind_kt`` ((2,)) only with
+    ``expose_wind=True``. At reset the values are neutral: nothing clipped, violated or
+    lost, reward 0, the airspeed range and separation those of the initial state, the
+    waypoint the destination.
 
     ## Version History
 
@@ -114,6 +126,8 @@ class ATCParallelEnv(ParallelEnv):
             agent: spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32) for agent in self.possible_agents
         }
         self.state_space = self.world.obs_spec.state_space(self.world.n_slots)
+        self._all_index = np.arange(n, dtype=np.int64)
+        self._live_index = self._all_index
         self._np_random: np.random.Generator | None = None
         self._np_random_seed: int | None = None
         self._renderer: Any = None
@@ -156,24 +170,33 @@ class ATCParallelEnv(ParallelEnv):
             episode_seed = draw_episode_seed(self.np_random)
         self.world.reset(episode_seed)
         self.agents = self.possible_agents[:]
+        self._live_index = self._all_index
         obs = self.world.observe()
-        arrays = self.world.reset_info_arrays()
-        common = self._common_info()
-        observations = {agent: obs[i] for i, agent in enumerate(self.agents)}
-        infos = {
-            agent: {key: float(value[i]) for key, value in arrays.items()} | common
-            for i, agent in enumerate(self.agents)
-        }
+        observations = dict(zip(self.agents, obs))
+        infos = self._infos(self.agents, self._live_index.tolist())
         if self.render_mode == "human":
             self.render()
         return observations, infos
 
-    def _common_info(self) -> dict[str, Any]:
+    def _infos(self, agents: list[str], index: list[int]) -> dict[str, dict[str, Any]]:
+        """Per-agent info dicts from the world's info arrays (same keys at reset and step)."""
         world = self.world
-        info: dict[str, Any] = {"time_s": float(world.sim.time_s), "episode_seed": world.episode_seed}  # type: ignore[union-attr]
-        if self.cfg.expose_wind:
-            info["wind_kt"] = world.sim.wind_kt.copy()  # type: ignore[union-attr]
-        return info
+        arrays, min_separation = world.info_arrays()
+        rows = list(zip(*[arrays[key].tolist() for key in _SCALAR_INFO_KEYS], arrays["waypoint_nm"]))
+        common: dict[str, Any] = {
+            "min_separation_nm": min_separation,
+            "time_s": float(world.sim.time_s),  # type: ignore[union-attr]
+            "episode_seed": world.episode_seed,
+        }
+        wind = world.sim.wind_kt if self.cfg.expose_wind else None  # type: ignore[union-attr]
+        infos: dict[str, dict[str, Any]] = {}
+        for agent, i in zip(agents, index):
+            info = dict(zip(_ROW_KEYS, rows[i]))
+            info.update(common)
+            if wind is not None:
+                info["wind_kt"] = wind.copy()
+            infos[agent] = info
+        return infos
 
     def step(
         self, actions: dict[str, Any]
@@ -190,60 +213,70 @@ class ATCParallelEnv(ParallelEnv):
                 f"parallel_env: actions must be a dict {{agent: action}}, got {type(actions).__name__}; "
                 f"agents alive: {self.agents}"
             )
-        unknown = [agent for agent in actions if agent not in self._index]
-        if unknown:
-            raise ValueError(f"parallel_env: unknown agent(s) {unknown}; agents of this env: {self.possible_agents}")
-        if not self.agents:
+        live = self.agents
+        if len(actions) != len(live) or not live:
+            unknown = [agent for agent in actions if agent not in self._index]
+            if unknown:
+                raise ValueError(
+                    f"parallel_env: unknown agent(s) {unknown}; agents of this env: {self.possible_agents}"
+                )
+        if not live:
             if actions and any(value is not None for value in actions.values()):
                 raise ValueError(
                     "parallel_env: the episode is over (every aircraft has arrived or left, or the time "
                     "limit passed); call reset() before step()"
                 )
             return {}, {}, {}, {}, {}
-        missing = [agent for agent in self.agents if agent not in actions]
-        if missing:
-            raise ValueError(f"parallel_env: no action for live agent(s) {missing}; give one for each of {self.agents}")
-        n = world.n_aircraft
-        live = self.agents
-        index = [self._index[agent] for agent in live]
-        raw = np.zeros((n, 2))
         try:
-            stacked = np.asarray([actions[agent] for agent in live], dtype=np.float64)
+            stacked = np.array([actions[agent] for agent in live], dtype=np.float64)
             ok = stacked.shape == (len(live), 2) and bool(np.isfinite(stacked).all())
+        except KeyError:
+            unknown = [agent for agent in actions if agent not in self._index]
+            if unknown:
+                raise ValueError(
+                    f"parallel_env: unknown agent(s) {unknown}; agents of this env: {self.possible_agents}"
+                ) from None
+            missing = [agent for agent in live if agent not in actions]
+            raise ValueError(
+                f"parallel_env: no action for live agent(s) {missing}; give one for each of {live}"
+            ) from None
         except (TypeError, ValueError):
             ok = False
-        if ok:
-            raw[index] = stacked
         if not ok:  # find the culprit and say what is wrong with it
             for agent in live:
                 _agent_action(agent, actions[agent])
-        clipped_actions, clipped = validate_step_actions(raw, (n, 2), "parallel_env")
-        outcome, trace = world.step(clipped_actions)
-        arrays = world.step_info_arrays(outcome, trace, clipped)
+        n = world.n_aircraft
+        index = self._live_index
+        if len(live) == n:
+            raw = stacked
+        else:
+            raw = np.zeros((n, 2))
+            raw[index] = stacked
+        # NaN and inf were refused above; values outside the box are clipped by the world.
+        clipped = (raw < -1.0).any(axis=1) | (raw > 1.0).any(axis=1)
+        outcome, _ = world.step(raw, clipped)
         obs = world.observe()
-        flying = world.flying.tolist()
+        index_list = index.tolist()
+        flying = world.flying[index].tolist()
+        rewards_list = outcome.rewards[0, index].tolist()
         truncate = world.truncated
-        common = self._common_info()
-        rewards_list = outcome.rewards[0].tolist()
-        waypoints = arrays.pop("waypoint_nm")
-        min_separation = arrays.pop("min_separation_nm")
-        columns = {key: value.tolist() for key, value in arrays.items()}
-        observations: dict[str, np.ndarray] = {}
-        rewards: dict[str, float] = {}
-        terminations: dict[str, bool] = {}
-        truncations: dict[str, bool] = {}
-        infos: dict[str, dict[str, Any]] = {}
-        for agent, i in zip(live, index):
-            observations[agent] = obs[i]
-            rewards[agent] = rewards_list[i]
-            terminations[agent] = not flying[i]
-            truncations[agent] = flying[i] and truncate
-            info = {key: column[i] for key, column in columns.items()}
-            info["min_separation_nm"] = min_separation
-            info["waypoint_nm"] = waypoints[i]
-            info.update(common)
-            infos[agent] = info
-        self.agents = [agent for agent in live if not (terminations[agent] or truncations[agent])]
+        observations = {agent: obs[i] for agent, i in zip(live, index_list)}
+        rewards = dict(zip(live, rewards_list))
+        terminations = {agent: not alive for agent, alive in zip(live, flying)}
+        # At the time limit every agent of the step is truncated, also one that arrives or
+        # leaves on that step (then terminated too): the last step never mixes agents that
+        # are only terminated with agents that are only truncated, so wrappers that end
+        # the episode on "all terminated or all truncated" (RLlib's) end it cleanly.
+        truncations = dict.fromkeys(live, truncate)
+        infos = self._infos(live, index_list)
+        if truncate:
+            self.agents = []
+        elif all(flying):
+            self.agents = live
+        else:
+            self.agents = [agent for agent, alive in zip(live, flying) if alive]
+        if len(self.agents) != len(live):
+            self._live_index = np.array([self._index[agent] for agent in self.agents], dtype=np.int64)
         if self.render_mode == "human":
             self.render()
         return observations, rewards, terminations, truncations, infos
@@ -255,10 +288,11 @@ class ATCParallelEnv(ParallelEnv):
             raise ValueError("parallel_env: state() before reset(); call reset() first")
         return self.world.global_state()
 
-    def render(self) -> np.ndarray | None:
+    def render(self, mode: str | None = None) -> np.ndarray | None:
         """An (H, W, 3) uint8 frame for ``render_mode="rgb_array"``; draws into a window for
-        "human" (nothing without a display); None (with a warning) without a render mode."""
-        return render_world(self, self.world)
+        "human" (nothing without a display); None (with a warning) without a render mode.
+        ``mode`` (RLlib's wrappers pass it) must be None or the env's ``render_mode``."""
+        return render_world(self, self.world, mode)
 
     def close(self) -> None:
         close_renderers(self)
@@ -296,10 +330,23 @@ class raw_env(parallel_to_aec_wrapper):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(ATCParallelEnv(**kwargs))
 
+    def render(self, mode: str | None = None) -> np.ndarray | None:
+        """See ``ATCParallelEnv.render``."""
+        return self.env.render(mode)
+
+
+class _OrderEnforcingWrapper(wrappers.OrderEnforcingWrapper):
+    """PettingZoo's wrapper, with ``render`` taking the mode that RLlib's wrapper passes."""
+
+    def render(self, mode: str | None = None) -> np.ndarray | None:
+        if not self._has_reset:
+            EnvLogger.error_render_before_reset()
+        return self.env.render(mode)
+
 
 def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
     """The AEC form (``raw_env`` in PettingZoo's ``OrderEnforcingWrapper``)."""
-    return wrappers.OrderEnforcingWrapper(raw_env(**kwargs))
+    return _OrderEnforcingWrapper(raw_env(**kwargs))
 
 
 __all__ = ["AGENT_PREFIX", "ATCParallelEnv", "env", "parallel_env", "raw_env"]

@@ -44,6 +44,8 @@ from atc_nf_env.kernel import (
     S_DEST_X,
     S_DEST_Y,
     S_STATUS,
+    S_WP_X,
+    S_WP_Y,
     S_X,
     S_Y,
     KernelScratch,
@@ -174,13 +176,15 @@ class BatchWorlds:
         return outcome, trace
 
     def info_arrays(self, outcome: StepOutcome | None, trace: Trace | None, clipped: np.ndarray | None) -> dict[str, Any]:
-        """Per-world info arrays, (B, M) per aircraft or (B,), matching ``EncounterEnv``'s keys."""
+        """Per-world info arrays, (B, M) per aircraft or (B,), with ``EncounterEnv``'s keys;
+        the same keys, shapes and dtypes after a reset (outcome None), with neutral values."""
         state = self.state
         flying = self.flying
         present = self.present
         status = state[:, :, S_STATUS]
+        airspeed = np.where(present, state[:, :, S_AIRSPEED], 0.0)
         info: dict[str, Any] = {
-            "airspeed_kt": np.where(present, state[:, :, S_AIRSPEED], 0.0),
+            "airspeed_kt": airspeed,
             "distance_to_go_nm": np.where(
                 present, np.hypot(state[:, :, S_DEST_X] - state[:, :, S_X], state[:, :, S_DEST_Y] - state[:, :, S_Y]), 0.0
             ),
@@ -190,21 +194,36 @@ class BatchWorlds:
             min_sep = trace.min_separation_nm.astype(np.float64)
             info.update(
                 {
-                    "airspeed_min_kt": np.where(self.present, trace.min_airspeed_kt, 0.0),
-                    "airspeed_max_kt": np.where(self.present, trace.max_airspeed_kt, 0.0),
+                    "airspeed_min_kt": np.where(present, trace.min_airspeed_kt, 0.0),
+                    "airspeed_max_kt": np.where(present, trace.max_airspeed_kt, 0.0),
                     "min_separation_nm": np.where(min_sep >= NO_PAIR_SEPARATION_NM, np.inf, min_sep),
                     "los_count": outcome.los_count,
                     "envelope_violation": trace.violation_steps > 0,
                     "envelope_violation_fraction": outcome.violation_fraction,
                     "action_clipped": clipped & outcome.flew,
-                    "arrived": status == ARRIVED,
-                    "left_workspace": status == LEFT,
-                    "waypoint_nm": np.where(self.present[..., None], self.last_waypoints, 0.0),
-                    "reward": outcome.rewards,
+                    "aircraft_reward": outcome.rewards,
+                    "waypoint_nm": np.where(present[..., None], self.last_waypoints, 0.0),
                 }
             )
+        else:
+            shape = flying.shape
+            info.update(
+                {
+                    "airspeed_min_kt": airspeed.copy(),
+                    "airspeed_max_kt": airspeed.copy(),
+                    "min_separation_nm": np.where(flying, self._nearest, np.inf).min(axis=1),
+                    "los_count": np.zeros(shape, dtype=np.int64),
+                    "envelope_violation": np.zeros(shape, dtype=bool),
+                    "envelope_violation_fraction": np.zeros(shape),
+                    "action_clipped": np.zeros(shape, dtype=bool),
+                    "aircraft_reward": np.zeros(shape),
+                    "waypoint_nm": np.where(present[..., None], state[:, :, [S_WP_X, S_WP_Y]], 0.0),
+                }
+            )
+        info["arrived"] = status == ARRIVED
+        info["left_workspace"] = status == LEFT
         info["alive"] = flying
-        info["present"] = self.present
+        info["present"] = present
         info["time_s"] = self.time_s.copy()
         info["episode_seed"] = self.episode_seeds.copy()
         if self.cfg.expose_wind:
