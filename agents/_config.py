@@ -62,9 +62,22 @@ def write_json(path: Path, data: Any) -> None:
     path.write_text(json.dumps(data, indent=2) + "\n")
 
 
+def planned_timesteps(model: Any, total_timesteps: int) -> int:
+    """Timesteps ``model.learn(total_timesteps)`` will run: rounded up to whole rollouts of
+    n_steps × n_envs for on-policy algorithms (PPO, A2C), up to n_envs more for the others."""
+    n_envs = int(getattr(model, "n_envs", 1) or 1)
+    n_steps = getattr(model, "n_steps", None)
+    chunk = int(n_steps) * n_envs if n_steps else n_envs
+    return -(-int(total_timesteps) // chunk) * chunk
+
+
 def progress_callback(total_timesteps: int, enabled: bool) -> Any:
     """An SB3 callback drawing a tqdm progress bar over the timesteps (SB3's own
-    ``progress_bar=True`` needs ``rich``, which the ``rl`` extra does not install)."""
+    ``progress_bar=True`` needs ``rich``, which the ``rl`` extra does not install).
+
+    An on-policy algorithm collects whole rollouts (n_steps × n_envs timesteps), so it
+    runs past ``total_timesteps`` up to the next multiple: the bar's total is what will
+    really run, and the bar never passes it."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class TqdmCallback(BaseCallback):
@@ -72,14 +85,17 @@ def progress_callback(total_timesteps: int, enabled: bool) -> Any:
             if enabled:
                 from tqdm import tqdm
 
-                self.bar = tqdm(total=total_timesteps, unit="step", dynamic_ncols=True)
+                total = planned_timesteps(self.model, total_timesteps)
+                desc = f"timesteps ({total_timesteps} asked, whole rollouts)" if total != total_timesteps else None
+                self.bar = tqdm(total=total, unit="step", dynamic_ncols=True, desc=desc)
                 self.last = self.model.num_timesteps
             else:
                 self.bar = None
 
         def _on_step(self) -> bool:
             if self.bar is not None:
-                self.bar.update(self.model.num_timesteps - self.last)
+                done = self.model.num_timesteps - self.last
+                self.bar.update(max(0, min(done, self.bar.total - self.bar.n)))
                 self.last = self.model.num_timesteps
             return True
 

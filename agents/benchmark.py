@@ -82,12 +82,20 @@ def _fmt_latency(seconds: float) -> str:
     return f"{seconds * 1e6:.0f} µs"
 
 
+def _per_run(summary: dict[str, Any], key: str) -> str:
+    value = summary.get(key)
+    return "n/a" if value is None else str(value)
+
+
 def table(results: dict[str, Any]) -> str:
-    """The markdown comparison table."""
+    """The markdown comparison table. Safety is counted per run (a run counts if any of
+    its integration steps breached), next to the pooled share of steps; the success rate
+    carries its Wilson 95 % interval."""
     lines = [
-        "| scenario | policy | runs | success | LoS (runs with LoS) | envelope held (% of steps) | "
+        "| scenario | policy | runs | success [95 % CI] | runs with LoS (LoS) | min separation (nm) | "
+        "runs outside envelope | runs at airspeed cap | worst excursion (kt) | envelope held (% of steps) | "
         "mean flight time (min) | decision latency | MPC latency / agent's |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for scenario, by_policy in results.items():
         mpc = by_policy.get("mpc", {}).get("wall_s_per_decision")
@@ -95,9 +103,17 @@ def table(results: dict[str, Any]) -> str:
             latency = s["wall_s_per_decision"]
             ratio = f"{mpc / latency:,.0f}×" if mpc and latency and label != "mpc" else "1×" if label == "mpc" else ""
             flight = s["flight_time_min"]["mean"]
+            ci = s.get("success_rate_ci95")
+            success = f"{100 * s['success_rate']:.1f} %" + (
+                f" [{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]" if ci else "")
+            separation = s["min_separation_nm"]["min"]
+            worst = s.get("worst_envelope_excursion_kt", s.get("worst_excursion_kt"))
             lines.append(
-                f"| {scenario} | {label} | {s['runs']} | {100 * s['success_rate']:.1f} % | "
-                f"{s['los_count']} ({s['runs_with_los']}) | {100 * (1 - s['envelope_violation_fraction']):.2f} | "
+                f"| {scenario} | {label} | {s['runs']} | {success} | {s['runs_with_los']} ({s['los_count']}) | "
+                f"{'n/a' if separation is None else f'{separation:.2f}'} | "
+                f"{_per_run(s, 'runs_with_envelope_violation')} | {_per_run(s, 'runs_at_airspeed_cap')} | "
+                f"{'n/a' if worst is None else f'{worst:.0f}'} | "
+                f"{100 * (1 - s['envelope_violation_fraction']):.2f} | "
                 f"{'n/a' if flight is None else f'{flight:.1f}'} | {_fmt_latency(latency)} | {ratio} |"
             )
     return "\n".join(lines) + "\n"

@@ -104,7 +104,8 @@ def _fly(args: argparse.Namespace) -> int:
         record_every=record_every,
     )
     print(format_run(result.metrics))
-    print(f"  warm-up before the timed episode (numba compile or cache load, first decision): {compile_s:.2f} s")
+    print(f"  times above are warm; the warm-up before them (numba compiling or loading its cache, the "
+          f"policy's first decision) took {compile_s:.2f} s (compile_s)")
     info = policy.episode_info() if hasattr(policy, "episode_info") else {}
     if info:
         print("  policy: " + ", ".join(f"{key} {value}" for key, value in info.items()))

@@ -273,6 +273,12 @@ def test_benchmark_table_and_mpc_reuse(tmp_path: Path) -> None:
     assert set(results["converging-3"]) == {"nf", "mpc", SHIPPED[0].stem}
     text = benchmark.table(results)
     assert text.count("\n") == 2 + 3 and "| converging-3 | mpc | 1 |" in text
+    header, _, *rows = text.splitlines()
+    for column in ("runs with LoS", "min separation", "runs outside envelope", "runs at airspeed cap",
+                   "worst excursion", "95 % CI"):
+        assert column in header
+    assert all(row.count("|") == header.count("|") for row in rows)
+    assert "n/a" not in "".join(row.split("|")[7] for row in rows)  # every policy counts runs outside
     # An earlier MPC study of the same seeds (e.g. the reproduction's) is copied, not flown again.
     source = tmp_path / "reproduction"
     source.mkdir()
@@ -282,3 +288,20 @@ def test_benchmark_table_and_mpc_reuse(tmp_path: Path) -> None:
     target = tmp_path / "b" / "mpc.jsonl"
     assert benchmark.reuse_mpc_runs(Study(policy="mpc", scenario="converging-3"), 1, source, target) == 1
     assert benchmark.reuse_mpc_runs(Study(policy="mpc", scenario="converging-4"), 1, source, tmp_path / "c.jsonl") == 0
+
+
+def test_train_progress_bar_ends_at_what_really_runs(capsys) -> None:
+    from stable_baselines3 import PPO
+
+    from agents._config import planned_timesteps, progress_callback
+    from atc_nf_env.envs.vector import make_sb3_vec_env
+
+    venv = make_sb3_vec_env(2, mode="shared", scenario="converging-3")
+    model = PPO("MlpPolicy", venv, n_steps=8, batch_size=16, n_epochs=1, seed=0)
+    rollout = 8 * venv.num_envs
+    assert planned_timesteps(model, 10) == rollout and planned_timesteps(model, rollout + 1) == 2 * rollout
+    callback = progress_callback(rollout + 1, enabled=True)
+    model.learn(rollout + 1, callback=callback)
+    assert model.num_timesteps == 2 * rollout
+    assert callback.bar.n == callback.bar.total == 2 * rollout
+    venv.close()
