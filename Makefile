@@ -21,9 +21,12 @@ $(BIN)/atc-nf: pyproject.toml
 	$(BIN)/pip install --quiet -e ".[test,rl,ray]"
 	touch $@
 
+# Quick: no pip inside the venv (the host's pip installs into it; `.venv-demo/bin/python -m
+# ensurepip` adds one), no byte-compiling at install time. Without a host pip, the slow way.
 $(DEMO_BIN)/atc-nf: pyproject.toml
-	$(PYTHON) -m venv $(DEMO_VENV)
-	$(DEMO_BIN)/pip install --quiet --no-compile -e .
+	$(PYTHON) -m venv --without-pip $(DEMO_VENV)
+	$(PYTHON) -m pip --python $(DEMO_BIN)/python install --quiet --no-compile -e . \
+		|| { $(DEMO_BIN)/python -m ensurepip && $(DEMO_BIN)/python -m pip install --quiet --no-compile -e . ; }
 	touch $@
 
 demo: $(DEMO_BIN)/atc-nf
