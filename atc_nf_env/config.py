@@ -50,6 +50,10 @@ class SimConfig:
         p_floor: floor on |P_i| (units of 1/L) in the 1/P_i term of (5a) (guard).
         grad_floor: below this ‖∇Φ_i‖ (units of 1/L) θ_nh is taken as θ_d (guard; the
             paper's rule at q_i = q_d, extended to where the gradient has no direction).
+        dphi_dt_gain: weight of ∂Φ_i/∂t in (5a) (1: the paper's law).
+        substep_s: longest sub-step, s, of an integration step in which a command
+            saturates at ``airspeed_cap_kt`` (the law's singularity, see the kernel):
+            such a step is flown in ceil(dt_s / substep_s) sub-steps.
     """
 
     k: float = 2.0
@@ -72,6 +76,7 @@ class SimConfig:
     p_floor: float = 1e-9
     grad_floor: float = 1e-12
     dphi_dt_gain: float = 1.0
+    substep_s: float = 0.1
 
     def __post_init__(self) -> None:
         for field in fields(self):
@@ -81,7 +86,7 @@ class SimConfig:
         positive = (
             "k", "eps_nh", "length_scale_nm", "k_theta", "sensing_radius_nm", "barrier_nm", "f_cutoff",
             "arrival_tolerance_nm", "dt_s", "aircraft_radius_nm", "airspeed_cap_kt",
-            "p_floor", "grad_floor", "separation_min_nm",
+            "p_floor", "grad_floor", "separation_min_nm", "substep_s",
         )
         for name in positive:
             if getattr(self, name) <= 0:
@@ -142,4 +147,5 @@ class SimConfig:
         params[nf.P_P_FLOOR] = self.p_floor
         params[nf.P_GRAD_FLOOR] = self.grad_floor
         params[nf.P_DPHI_DT_GAIN] = self.dphi_dt_gain
+        params[nf.P_SUBSTEP] = self.substep_s
         return params

@@ -29,17 +29,34 @@ leaves undefined; none acts in an ordinary flight):
 2. The commanded airspeed is saturated at ±``airspeed_cap_kt``: as P_i → 0 the 1/P_i
    term grows without bound. The cap is far outside the envelope, so a saturated
    step is still counted as a violation and no feasibility verdict changes.
+   A step in which any command saturates is flown in sub-steps (guard 8).
 3. Where ‖∇_iΦ_i‖ < ``grad_floor`` (at q_i = q_d, or a critical point) the gradient
    has no direction, and θ_nh = θ_d (the paper's rule at q_i = q_d).
 4. Heading errors are wrapped to [−π, π): θ_i − θ_nh is an angle, and an unwrapped
    difference of 2π would command a full useless turn.
-5. θ̇_nh is a backward difference of θ_nh over one step (the law needs it; the closed
-   form would need the Hessian of Φ). It is reset to 0 on a waypoint switch and when
-   θ_nh jumps by more than π/2 in one step (sgn(p_i) flipping, or a switch): a jump is
-   not a rate, and differencing it would command an arbitrary turn.
+5. θ̇_nh is a backward difference of θ_nh over the last step (the law needs it; the
+   closed form would need the Hessian of Φ). It is reset to 0 on a waypoint switch and
+   when θ_nh jumps by more than π/2 in one step (sgn(p_i) flipping, or a switch): a
+   jump is not a rate, and differencing it would command an arbitrary turn.
 6. Disks that overlap give G_i = 0 (see ``nf.proximity_bump``), not a negative G_i.
 7. An aircraft whose disk reaches the workspace boundary (β0 ≤ 0) has left and is no
    longer simulated, so Φ is never evaluated where it is undefined.
+8. Sub-steps at the singularity. Near a critical point of Φ_i with neighbours closing
+   in (∂Φ_i/∂t > 0, |P_i| → 0; the converging encounters without wind reach one), the
+   1/P_i term saturates and its sign follows the sign of P_i: u_i = −u_cap sgn(P_i).
+   Where Φ_i has a minimum along the heading this drives P_i back to 0 from either
+   side, a sliding motion along P_i = 0 whose airspeed is bounded (Filippov's
+   convex combination of ±u_cap). A step of dt overshoots that surface by up to
+   u_cap · dt (2 nm at 5 s) and the sign then alternates step by step, so the flight
+   depended on dt. A step in which any command saturates is therefore flown in
+   ceil(dt / ``substep_s``) explicit-Euler sub-steps, each with fresh commands; the
+   overshoot falls to u_cap · substep_s (0.04 nm at 0.1 s) whatever dt is. The outer
+   grid is kept: traces, records and violation counts stay per integration step
+   (min/max airspeed, separation and arrival are checked on every sub-step), and
+   the step after a refined one is Euler (AB2's previous rates are a sub-step old).
+   Where the world stops at this step anyway (``stop_on_violation`` and a command
+   outside the envelope, as in the MPC's candidates) the step is not refined: its
+   first sub-step has the same command and the same verdict.
 
 An aircraft that arrives (its path passes within Δ of its destination, checked on
 every integration step's segment) or leaves is frozen and stops being an obstacle.
@@ -77,6 +94,7 @@ from atc_nf_env.nf import (
     P_RADIUS,
     P_SEP_MIN,
     P_STOP_ON_VIOLATION,
+    P_SUBSTEP,
     P_U_CAP,
     P_U_MAX,
     P_U_MIN,
@@ -104,7 +122,8 @@ S_SIN_D = 16  # sin θ_d
 S_VX_PREV = 17  # ground velocity of the last step, kt (for the AB2 integrator)
 S_VY_PREV = 18
 S_OMEGA_PREV = 19  # turn rate of the last step, rad/s
-N_STATE = 20
+S_LAST_SUBSTEPS = 20  # sub-steps the last integration step was flown in (0 or 1: not refined)
+N_STATE = 21
 
 # Scratch columns of the per-step commands.
 C_U_FEEDBACK = 0  # −sgn(P_i) F_i, kt
@@ -116,7 +135,8 @@ C_U = 5  # airspeed command of (5a), kt
 C_COS = 6  # cos θ_i
 C_SIN = 7  # sin θ_i
 C_NEAR = 8  # neighbours within the sensing radius
-N_COMMAND = 9
+C_VIOLATED = 9  # 1 once the aircraft's airspeed left the envelope during this step
+N_COMMAND = 10
 
 # Record fields (optional per-step recording).
 R_X, R_Y, R_HEADING, R_AIRSPEED, R_FLEW = 0, 1, 2, 3, 4  # R_FLEW: 1 if it flew that step
@@ -180,6 +200,99 @@ def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py:
     return math.sqrt(ex * ex + ey * ey)
 
 
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _commands(
+    state: np.ndarray,
+    pos: np.ndarray,
+    status: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    nf_consts: tuple,
+    params: np.ndarray,
+    inv_dt: float,
+) -> tuple[bool, bool, bool]:
+    """The law's commands (5a)-(5b) of every flying aircraft from the current positions,
+    into ``command``. Returns (any aircraft flying, any command saturated at the cap
+    (guard 2), any command outside the envelope)."""
+    n = state.shape[0]
+    inv_len = 1.0 / params[P_LENGTH]
+    k_u = params[P_K_U]
+    k_z = params[P_K_Z]
+    k_theta = params[P_K_THETA]
+    u_cap = params[P_U_CAP]
+    p_floor = params[P_P_FLOOR]
+    grad_floor = params[P_GRAD_FLOOR]
+    dphi_dt_gain = params[nf.P_DPHI_DT_GAIN]
+    u_min = params[P_U_MIN]
+    u_max = params[P_U_MAX]
+    any_flying = False
+    # Pass 1, from the positions at the start of the step: every flying aircraft's
+    # gradients, feedback airspeed −sgn(P_i) F_i and heading rate.
+    for i in range(n):
+        if status[i] != FLYING:
+            continue
+        any_flying = True
+        wx = state[i, S_WP_X]
+        wy = state[i, S_WP_Y]
+        theta_d = state[i, S_THETA_D]
+        cos_d = state[i, S_COS_D]
+        sin_d = state[i, S_SIN_D]
+        _, n_near = nf.nf_along_direction(i, pos, status, wx, wy, cos_d, sin_d, nf_consts, grad[i])
+        command[i, C_NEAR] = n_near
+        gx = grad[i, i, 0]
+        gy = grad[i, i, 1]
+        heading = state[i, S_HEADING]
+        cos_h = math.cos(heading)
+        sin_h = math.sin(heading)
+        p_dir = cos_h * gx + sin_h * gy
+        dx = (state[i, S_X] - wx) * inv_len
+        dy = (state[i, S_Y] - wy) * inv_len
+        grad_norm2 = gx * gx + gy * gy
+        f_speed = k_u * grad_norm2 + k_z * (dx * dx + dy * dy)
+        sgn_p = 1.0 if p_dir >= 0.0 else -1.0
+        if grad_norm2 > grad_floor * grad_floor:
+            along = cos_d * dx + sin_d * dy
+            sgn_along = 1.0 if along >= 0.0 else -1.0
+            theta_nh = math.atan2(sgn_along * gy, sgn_along * gx)
+        else:
+            theta_nh = theta_d  # guard 3
+        theta_nh_rate = 0.0
+        if state[i, S_FRESH] == 0.0:
+            jump = _wrap(theta_nh - state[i, S_THETA_NH])
+            if abs(jump) <= _HALF_PI:  # guard 5
+                # Over the length of the last step: dt / (its number of sub-steps).
+                theta_nh_rate = jump * (max(state[i, S_LAST_SUBSTEPS], 1.0) * inv_dt)
+        command[i, C_U_FEEDBACK] = -sgn_p * f_speed
+        command[i, C_OMEGA] = -k_theta * _wrap(heading - theta_nh) + theta_nh_rate  # guard 4
+        command[i, C_THETA_NH] = theta_nh
+        command[i, C_P] = sgn_p * max(abs(p_dir), p_floor)  # guard 1
+        command[i, C_COS] = cos_h
+        command[i, C_SIN] = sin_h
+    saturated = False
+    outside = False
+    if not any_flying:
+        return any_flying, saturated, outside
+    # Pass 2: the ∂Φ_i/∂t term of (5a) with the neighbours' feedback airspeeds.
+    for i in range(n):
+        if status[i] != FLYING:
+            continue
+        dphi_dt = 0.0
+        for j in range(n if command[i, C_NEAR] > 0 else 0):
+            if j == i or status[j] != FLYING:
+                continue
+            along_j = grad[i, j, 0] * command[j, C_COS] + grad[i, j, 1] * command[j, C_SIN]
+            dphi_dt += command[j, C_U_FEEDBACK] * along_j
+        dphi_dt *= dphi_dt_gain
+        u = command[i, C_U_FEEDBACK] - (dphi_dt + abs(dphi_dt)) / (2.0 * command[i, C_P])
+        if not -u_cap < u < u_cap:
+            saturated = True
+            u = min(max(u, -u_cap), u_cap)  # guard 2
+        if not u_min <= u <= u_max:
+            outside = True
+        command[i, C_U] = u
+    return any_flying, saturated, outside
+
+
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _advance_world(
     state: np.ndarray,
@@ -202,21 +315,15 @@ def _advance_world(
     """Advance one world by n_steps; returns (min separation, steps done, violated)."""
     n = state.shape[0]
     dt = params[P_DT]
-    inv_len = 1.0 / params[P_LENGTH]
-    k_u = params[P_K_U]
-    k_z = params[P_K_Z]
-    k_theta = params[P_K_THETA]
     u_min = params[P_U_MIN]
     u_max = params[P_U_MAX]
-    u_cap = params[P_U_CAP]
-    p_floor = params[P_P_FLOOR]
-    grad_floor = params[P_GRAD_FLOOR]
-    dphi_dt_gain = params[nf.P_DPHI_DT_GAIN]
     delta = params[P_DELTA]
     sep_min = params[P_SEP_MIN]
     exit_radius = params[P_R_WORLD] - params[P_RADIUS]
     stop_on_violation = params[P_STOP_ON_VIOLATION] != 0.0
-    nm_per_kt_step = dt / SECONDS_PER_HOUR
+    substep_max = params[P_SUBSTEP]
+    # Sub-steps of a refined step: the fewest whose length is at most substep_max.
+    n_refined = max(1, int(math.ceil(dt / substep_max - 1e-9)))
     pos = state[:, S_X : S_Y + 1]
     status = state[:, S_STATUS]
     nf_consts = nf.nf_constants(params)
@@ -246,139 +353,115 @@ def _advance_world(
 
     step = 0
     while step < n_steps:
-        any_flying = False
-        # Pass 1, from the positions at the start of the step: every flying aircraft's
-        # gradients, feedback airspeed −sgn(P_i) F_i and heading rate.
-        for i in range(n):
-            if status[i] != FLYING:
-                continue
-            any_flying = True
-            wx = state[i, S_WP_X]
-            wy = state[i, S_WP_Y]
-            theta_d = state[i, S_THETA_D]
-            cos_d = state[i, S_COS_D]
-            sin_d = state[i, S_SIN_D]
-            _, n_near = nf.nf_along_direction(i, pos, status, wx, wy, cos_d, sin_d, nf_consts, grad[i])
-            command[i, C_NEAR] = n_near
-            gx = grad[i, i, 0]
-            gy = grad[i, i, 1]
-            heading = state[i, S_HEADING]
-            cos_h = math.cos(heading)
-            sin_h = math.sin(heading)
-            p_dir = cos_h * gx + sin_h * gy
-            dx = (state[i, S_X] - wx) * inv_len
-            dy = (state[i, S_Y] - wy) * inv_len
-            grad_norm2 = gx * gx + gy * gy
-            f_speed = k_u * grad_norm2 + k_z * (dx * dx + dy * dy)
-            sgn_p = 1.0 if p_dir >= 0.0 else -1.0
-            if grad_norm2 > grad_floor * grad_floor:
-                along = cos_d * dx + sin_d * dy
-                sgn_along = 1.0 if along >= 0.0 else -1.0
-                theta_nh = math.atan2(sgn_along * gy, sgn_along * gx)
-            else:
-                theta_nh = theta_d  # guard 3
-            theta_nh_rate = 0.0
-            if state[i, S_FRESH] == 0.0:
-                jump = _wrap(theta_nh - state[i, S_THETA_NH])
-                if abs(jump) <= _HALF_PI:  # guard 5
-                    theta_nh_rate = jump * inv_dt
-            command[i, C_U_FEEDBACK] = -sgn_p * f_speed
-            command[i, C_OMEGA] = -k_theta * _wrap(heading - theta_nh) + theta_nh_rate  # guard 4
-            command[i, C_THETA_NH] = theta_nh
-            command[i, C_P] = sgn_p * max(abs(p_dir), p_floor)  # guard 1
-            command[i, C_COS] = cos_h
-            command[i, C_SIN] = sin_h
+        any_flying, saturated, outside = _commands(state, pos, status, grad, command, nf_consts, params, inv_dt)
         if not any_flying:
             break
-        # Pass 2: the ∂Φ_i/∂t term of (5a) with the neighbours' feedback airspeeds.
-        for i in range(n):
-            if status[i] != FLYING:
-                continue
-            dphi_dt = 0.0
-            for j in range(n if command[i, C_NEAR] > 0 else 0):
-                if j == i or status[j] != FLYING:
-                    continue
-                along_j = grad[i, j, 0] * command[j, C_COS] + grad[i, j, 1] * command[j, C_SIN]
-                dphi_dt += command[j, C_U_FEEDBACK] * along_j
-            dphi_dt *= dphi_dt_gain
-            u = command[i, C_U_FEEDBACK] - (dphi_dt + abs(dphi_dt)) / (2.0 * command[i, C_P])
-            command[i, C_U] = min(max(u, -u_cap), u_cap)  # guard 2
-
-        # Move, then check arrival, departure and the envelope.
+        # Step-size control at the law's singularity: where a command is saturated
+        # (|P_i| → 0 with ∂Φ_i/∂t > 0), the sign of the 1/P_i term flips as the
+        # aircraft crosses P_i = 0, and a full step overshoots the crossing by up to
+        # u_cap · dt (2 nm at 5 s). That step is flown in sub-steps of at most
+        # ``substep_max``, each with fresh commands, so that the motion along P_i ≈ 0
+        # converges as dt shrinks. Not where the world stops at this step anyway: its
+        # first sub-step has the same command, outside the envelope.
+        n_sub = 1
+        if saturated and not (stop_on_violation and outside):
+            n_sub = n_refined
+        h = dt / n_sub
+        nm_per_kt_step = h / SECONDS_PER_HOUR
         step_violation = False
         for i in range(n):
             command[i, C_FLEW] = 0.0
-            if status[i] != FLYING:
-                continue
-            command[i, C_FLEW] = 1.0
-            u = command[i, C_U]
-            heading = state[i, S_HEADING]
-            x0 = state[i, S_X]
-            y0 = state[i, S_Y]
-            vx = u * command[i, C_COS] + wind_x
-            vy = u * command[i, C_SIN] + wind_y
-            omega = command[i, C_OMEGA]
-            # Second-order Adams-Bashforth (AB2): the airspeed falls steadily as the
-            # waypoint nears, and explicit Euler's O(dt) error in that distance is what
-            # the convergence study saw. AB2 needs the previous step's rates; after a
-            # waypoint switch they belong to another law, so that step is plain Euler.
-            if state[i, S_FRESH] == 0.0:
-                x1 = x0 + (1.5 * vx - 0.5 * state[i, S_VX_PREV]) * nm_per_kt_step
-                y1 = y0 + (1.5 * vy - 0.5 * state[i, S_VY_PREV]) * nm_per_kt_step
-                new_heading = heading + (1.5 * omega - 0.5 * state[i, S_OMEGA_PREV]) * dt
-            else:
-                x1 = x0 + vx * nm_per_kt_step
-                y1 = y0 + vy * nm_per_kt_step
-                new_heading = heading + omega * dt
-            state[i, S_VX_PREV] = vx
-            state[i, S_VY_PREV] = vy
-            state[i, S_OMEGA_PREV] = omega
-            state[i, S_X] = x1
-            state[i, S_Y] = y1
-            state[i, S_HEADING] = _wrap(new_heading)
-            state[i, S_AIRSPEED] = u
-            state[i, S_THETA_NH] = command[i, C_THETA_NH]
-            state[i, S_FRESH] = 0.0
-            state[i, S_TIME] += dt
-            step_nm = math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
-            state[i, S_PATH] += step_nm
-            steps_flown[i] += 1
-            if u < min_airspeed[i]:
-                min_airspeed[i] = u
-            if u > max_airspeed[i]:
-                max_airspeed[i] = u
-            excursion = max(u_min - u, u - u_max)
-            if excursion > 0.0:
-                violation_steps[i] += 1
-                step_violation = True
-                if excursion > worst_excursion[i]:
-                    worst_excursion[i] = excursion
-            dest_x = state[i, S_DEST_X]
-            dest_y = state[i, S_DEST_Y]
-            reach = delta + step_nm
-            near = (x1 - dest_x) ** 2 + (y1 - dest_y) ** 2 <= reach * reach
-            if near and _segment_distance(x0, y0, x1, y1, dest_x, dest_y) <= delta:
-                status[i] = ARRIVED
-            elif x1 * x1 + y1 * y1 >= exit_radius * exit_radius:  # guard 7
-                status[i] = LEFT
-
-        # Separation among the aircraft that flew this step (one that arrived on this
-        # step still counts: it was in the airspace during the step).
-        for i in range(n):
-            if command[i, C_FLEW] == 0.0:
-                continue
-            for j in range(i + 1, n):
-                if command[j, C_FLEW] == 0.0:
+            command[i, C_VIOLATED] = 0.0
+        for sub in range(n_sub):
+            if sub > 0:
+                any_flying, _, _ = _commands(
+                    state, pos, status, grad, command, nf_consts, params, n_sub * inv_dt
+                )
+                if not any_flying:
+                    break
+            # Move, then check arrival, departure and the envelope.
+            for i in range(n):
+                if status[i] != FLYING:
                     continue
-                sx = state[i, S_X] - state[j, S_X]
-                sy = state[i, S_Y] - state[j, S_Y]
-                sep2 = sx * sx + sy * sy
-                if sep2 < min_sep2:
-                    min_sep2 = sep2
-                if sep2 < sep_min2:
-                    los_pairs[i, j] = 1
-                    los_pairs[j, i] = 1
+                command[i, C_FLEW] = 2.0  # flew this sub-step (1: flew an earlier one)
+                u = command[i, C_U]
+                heading = state[i, S_HEADING]
+                x0 = state[i, S_X]
+                y0 = state[i, S_Y]
+                vx = u * command[i, C_COS] + wind_x
+                vy = u * command[i, C_SIN] + wind_y
+                omega = command[i, C_OMEGA]
+                # Second-order Adams-Bashforth (AB2): the airspeed falls steadily as the
+                # waypoint nears, and explicit Euler's O(dt) error in that distance is what
+                # the convergence study saw. AB2 needs the previous step's rates at this
+                # step's length; after a waypoint switch they belong to another law, and
+                # within or after a refined step the command is not smooth (or the step
+                # length changed), so those steps are plain Euler.
+                if state[i, S_FRESH] == 0.0 and state[i, S_LAST_SUBSTEPS] <= 1.0 and n_sub == 1:
+                    x1 = x0 + (1.5 * vx - 0.5 * state[i, S_VX_PREV]) * nm_per_kt_step
+                    y1 = y0 + (1.5 * vy - 0.5 * state[i, S_VY_PREV]) * nm_per_kt_step
+                    new_heading = heading + (1.5 * omega - 0.5 * state[i, S_OMEGA_PREV]) * h
+                else:
+                    x1 = x0 + vx * nm_per_kt_step
+                    y1 = y0 + vy * nm_per_kt_step
+                    new_heading = heading + omega * h
+                state[i, S_VX_PREV] = vx
+                state[i, S_VY_PREV] = vy
+                state[i, S_OMEGA_PREV] = omega
+                state[i, S_LAST_SUBSTEPS] = n_sub
+                state[i, S_X] = x1
+                state[i, S_Y] = y1
+                state[i, S_HEADING] = _wrap(new_heading)
+                state[i, S_AIRSPEED] = u
+                state[i, S_THETA_NH] = command[i, C_THETA_NH]
+                state[i, S_FRESH] = 0.0
+                state[i, S_TIME] += h
+                step_nm = math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
+                state[i, S_PATH] += step_nm
+                if u < min_airspeed[i]:
+                    min_airspeed[i] = u
+                if u > max_airspeed[i]:
+                    max_airspeed[i] = u
+                excursion = max(u_min - u, u - u_max)
+                if excursion > 0.0:
                     step_violation = True
+                    if excursion > worst_excursion[i]:
+                        worst_excursion[i] = excursion
+                    if command[i, C_VIOLATED] == 0.0:
+                        violation_steps[i] += 1  # once per integration step
+                        command[i, C_VIOLATED] = 1.0
+                dest_x = state[i, S_DEST_X]
+                dest_y = state[i, S_DEST_Y]
+                reach = delta + step_nm
+                near = (x1 - dest_x) ** 2 + (y1 - dest_y) ** 2 <= reach * reach
+                if near and _segment_distance(x0, y0, x1, y1, dest_x, dest_y) <= delta:
+                    status[i] = ARRIVED
+                elif x1 * x1 + y1 * y1 >= exit_radius * exit_radius:  # guard 7
+                    status[i] = LEFT
+
+            # Separation among the aircraft that flew this sub-step (one that arrived on
+            # it still counts: it was in the airspace during the step).
+            for i in range(n):
+                if command[i, C_FLEW] != 2.0:
+                    continue
+                for j in range(i + 1, n):
+                    if command[j, C_FLEW] != 2.0:
+                        continue
+                    sx = state[i, S_X] - state[j, S_X]
+                    sy = state[i, S_Y] - state[j, S_Y]
+                    sep2 = sx * sx + sy * sy
+                    if sep2 < min_sep2:
+                        min_sep2 = sep2
+                    if sep2 < sep_min2:
+                        los_pairs[i, j] = 1
+                        los_pairs[j, i] = 1
+                        step_violation = True
+            for i in range(n):
+                if command[i, C_FLEW] == 2.0:
+                    command[i, C_FLEW] = 1.0
+        for i in range(n):
+            if command[i, C_FLEW] == 1.0:
+                steps_flown[i] += 1
         step += 1
         if n_record > 0 and step % record_every == 0 and step // record_every < n_record:
             r = step // record_every

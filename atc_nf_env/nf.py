@@ -68,7 +68,8 @@ P_P_FLOOR = 18  # floor on |P_i| in the 1/P term of (5a) (guard)
 P_GRAD_FLOOR = 19  # below this ‖∇Φ‖ the gradient has no direction (guard)
 P_DPHI_DT_GAIN = 20  # weight of ∂Φ_i/∂t in (5a): 1 is the paper's law
 P_BARRIER = 21  # barrier distance (centre to centre) of the proximity function, nm
-N_PARAMS = 22
+P_SUBSTEP = 22  # longest sub-step of an integration step refined at the singularity, s
+N_PARAMS = 23
 
 # Status of an aircraft (stored as float in the state array).
 FLYING = 0.0

@@ -195,3 +195,42 @@ def test_calibration_meets_the_speed_targets():
     alone = calibration.nf_alone_airspeed(CONFIG, np.array([500.0, 1.0]))
     assert alone[0] > CONFIG.airspeed_max_kt
     assert alone[1] < CONFIG.airspeed_min_kt
+
+
+def test_steps_refined_at_the_singularity_fly_the_same_alone_and_in_a_batch():
+    # Converging-6 without wind reaches the saddle, where commands saturate and steps
+    # are flown in sub-steps; worlds around it in the batch take other paths.
+    scenario = converging(6)
+    params = params_for(scenario)
+    single = initial_state(scenario)
+    batch = initial_state(scenario, n_worlds=5)
+    waypoints = scenario.dest_xy[None]
+    wind = np.zeros((1, 2))
+    batch_wind = np.array([[0.0, 0.0], [12.0, 3.0], [0.0, 0.0], [-8.0, 5.0], [0.0, 0.0]])
+    refined = False
+    for _ in range(8):
+        trace = advance(single, waypoints, wind, 300.0, params)
+        refined |= bool((single[0, :, kernel.S_LAST_SUBSTEPS] > 1).any())
+        refined |= bool((trace.max_airspeed_kt >= CONFIG.airspeed_cap_kt).any())
+        advance(batch, np.repeat(waypoints, 5, axis=0), batch_wind, 300.0, params)
+    assert refined
+    for b in (0, 2, 4):
+        assert np.array_equal(batch[b], single[0])
+
+
+def test_a_refined_step_keeps_the_outer_grid():
+    # Per-step counts stay per integration step however many sub-steps a step took.
+    scenario = converging(6)
+    params = params_for(scenario)
+    state = initial_state(scenario)
+    steps = kernel.steps_for(300.0, CONFIG.dt_s)
+    saw_refined = False
+    for _ in range(8):
+        trace = advance(state, scenario.dest_xy[None], np.zeros((1, 2)), 300.0, params, record_every=1)
+        assert trace.record.shape[1] == steps + 1
+        assert (trace.steps_flown <= steps).all() and (trace.violation_steps <= trace.steps_flown).all()
+        saw_refined |= bool((trace.max_airspeed_kt >= CONFIG.airspeed_cap_kt).any())
+    assert saw_refined
+    # Sub-steps add up to whole steps: every aircraft still flying has flown 40 min.
+    assert (state[0, :, S_STATUS] == FLYING).all()
+    np.testing.assert_allclose(state[0, :, kernel.S_TIME], 8 * 300.0, rtol=0, atol=1e-6)
