@@ -155,6 +155,7 @@ def plot_calibration(config: SimConfig, path: str) -> None:
     ax.axhline(AIRSPEED_NOMINAL_KT, color="0.45", ls="-.", lw=1, label=f"nominal {AIRSPEED_NOMINAL_KT:g} kt")
     ax.set_xlabel("distance to the waypoint (nm)")
     ax.set_ylabel("commanded airspeed (kt)")
+    ax.set_ylim(top=max(ax.get_ylim()[1], config.airspeed_max_kt + 40))  # keep 540 kt off the frame
     ax.set_title("Unobstructed NF airspeed, waypoint ahead")
     ax.legend(fontsize=8)
     ax = axes[1]
