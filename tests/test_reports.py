@@ -10,6 +10,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from atc_nf_env import evaluate as evaluate_module
 from atc_nf_env.cli import main
@@ -74,6 +76,16 @@ def test_summary_counts_the_cap_of_the_config_it_is_given() -> None:
 def test_wilson_interval_matches_reference_values(successes, trials, low, high) -> None:
     got = wilson_interval(successes, trials)
     assert got == pytest.approx((low, high), abs=5e-5)
+
+
+@given(st.integers(1, 100_000).flatmap(lambda n: st.tuples(st.integers(0, n), st.just(n))))
+def test_wilson_interval_holds_the_rate_and_narrows_with_more_runs(counts) -> None:
+    successes, trials = counts
+    low, high = wilson_interval(successes, trials)
+    assert 0.0 <= low <= successes / trials <= high <= 1.0
+    assert (low == 0.0) == (successes == 0) and (high == 1.0) == (successes == trials)
+    more_low, more_high = wilson_interval(successes * 4, trials * 4)
+    assert more_high - more_low <= high - low + 1e-12
 
 
 @pytest.mark.parametrize("successes, trials", [(3, 2), (-1, 5), (0, 0)])
