@@ -103,6 +103,11 @@ def make_policy(spec: str, **settings: Any) -> Policy:
         installed = _entry_points(POLICY_GROUP)
         if spec not in installed:
             files = ", ".join(f".{s}" for s in sorted(loaders)) or "none installed"
+            if not installed and not loaders:
+                raise ValueError(
+                    f"unknown policy {spec!r}: no policies are installed, because the atc-nf-env package is "
+                    "not (run `pip install -e .` in its checkout; policies come from its entry points)"
+                )
             raise ValueError(
                 f"unknown policy {spec!r}; allowed: {', '.join(available_policies()) or 'none installed'}, or the "
                 f"path of a saved policy ({files}; e.g. agents/models/<model>.zip). Packages add policies in the "

@@ -238,3 +238,11 @@ def test_bare_fly_flies_the_reference_mpc(capsys, monkeypatch) -> None:
     monkeypatch.setattr("atc_nf_env.cli.make_policy", spy)
     assert main(["fly", "--scenario", "converging-3", "--max-minutes", "5", "--extractions", "20"]) == 0
     assert made == ["mpc"]
+
+
+def test_without_the_package_installed_the_error_says_how_to_install(monkeypatch) -> None:
+    import atc_nf_env.policy as policy_module
+
+    monkeypatch.setattr(policy_module, "_entry_points", lambda group: {})
+    with pytest.raises(ValueError, match="pip install -e"):
+        make_policy("mpc")
