@@ -17,6 +17,7 @@ reports the airspeed's range over that set from 110 down to 60 nm.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -25,7 +26,7 @@ import numpy as np
 from atc_nf_env import nf
 from atc_nf_env.config import SimConfig
 from atc_nf_env.scenarios import ENCOUNTER_RADIUS_NM, WORKSPACE_RADIUS_NM
-from atc_nf_env.units import AIRSPEED_NOMINAL_KT
+from atc_nf_env.units import AIRSPEED_MAX_KT, AIRSPEED_MIN_KT, AIRSPEED_NOMINAL_KT
 
 #: k_z's contribution to F at 100 nm from the waypoint, kt.
 K_Z_SHARE_KT: float = 30.0
@@ -130,6 +131,38 @@ def nf_alone_airspeed(
         dist2 = (d / config.length_scale_nm) ** 2
         out.append(config.k_u * (grad[0, 0] ** 2 + grad[0, 1] ** 2) + config.k_z * dist2)
     return np.array(out)
+
+
+def check_calibrated(config: SimConfig, workspace_radius_nm: float) -> None:
+    """Refuse a workspace (or gains) outside the range the calibration holds for.
+
+    The NF's unobstructed airspeed scales roughly with 1/β0², so gains calibrated for one
+    workspace radius command a very different cruise elsewhere (with the default gains:
+    ~136 kt at 3000 nm, ~3700 kt at 500 nm). A flight is accepted where the median
+    unobstructed airspeed 100 nm from the waypoint over the flight region lies within
+    the airspeed envelope [366, 540] kt; otherwise a ValueError says so and how to
+    recalibrate (``calibrate(workspace_radius_nm=R)``). About 3 ms, once per (gains,
+    radius) pair.
+    """
+    median_kt = _cruise_airspeed_kt(config, float(workspace_radius_nm))
+    if not (math.isfinite(median_kt) and AIRSPEED_MIN_KT <= median_kt <= AIRSPEED_MAX_KT):
+        raise ValueError(
+            f"workspace_radius_nm = {workspace_radius_nm!r} with k_u = {config.k_u:.6g}, k_z = {config.k_z:.6g}: "
+            f"the NF would cruise at {median_kt:.0f} kt 100 nm from its waypoint, outside the envelope "
+            f"[{AIRSPEED_MIN_KT:g}, {AIRSPEED_MAX_KT:g}] kt; the default gains are calibrated for a "
+            f"{WORKSPACE_RADIUS_NM:g} nm workspace (they hold from about 1380 to 1640 nm). Refused, not "
+            "recalibrated: pass config=atc_nf_env.calibration.calibrate(workspace_radius_nm=R) to fly "
+            "another workspace"
+        )
+
+
+@functools.lru_cache(maxsize=64)
+def _cruise_airspeed_kt(config: SimConfig, workspace_radius_nm: float) -> float:
+    with np.errstate(all="ignore"):
+        check = unobstructed_airspeed(
+            config, np.array([CALIBRATION_DISTANCE_NM]), workspace_radius_nm=workspace_radius_nm
+        )
+    return float(check.median_kt[0])
 
 
 def plot_calibration(config: SimConfig, path: str) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -70,6 +71,23 @@ def warm_up(
     return time.perf_counter() - start
 
 
+def _whole_steps(name: str, seconds: float, dt_s: float) -> int:
+    """``seconds`` as a whole number >= 1 of integration steps of ``dt_s``, or a ValueError
+    saying which durations are allowed (checked before anything flies)."""
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} = {seconds!r}: must be a number of seconds")
+    seconds = float(seconds)
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"{name} = {seconds!r}: must be a finite number of seconds > 0")
+    steps = round(seconds / dt_s)
+    if steps < 1 or abs(steps * dt_s - seconds) > 1e-9 * max(1.0, seconds):
+        raise ValueError(
+            f"{name} = {seconds!r} s is not a whole number of integration steps of {dt_s:g} s; "
+            f"allowed: a multiple of {dt_s:g} s (e.g. {max(steps, 1) * dt_s:g})"
+        )
+    return steps
+
+
 def run_episode(
     policy: Policy,
     scenario: Scenario,
@@ -93,28 +111,33 @@ def run_episode(
         wind_kt: a fixed wind (east, north) in kt instead of a sampled one.
         config: NF gains and integrator settings.
         period_s: decision period T, s (a whole number of integration steps).
-        max_time_s: time limit, s.
+        max_time_s: time limit, s (a whole number of integration steps).
+
+    Raises:
+        ValueError: on a period or time limit that is not a whole number >= 1 of
+            integration steps (refused before anything flies), or any other bad setting.
         record_every: keep the state every this many integration steps (0: none).
     """
-    if not (np.isfinite(period_s) and period_s > 0):
-        raise ValueError(f"period_s = {period_s!r}: must be a finite number > 0")
-    if not (np.isfinite(max_time_s) and max_time_s > 0):
-        raise ValueError(f"max_time_s = {max_time_s!r}: must be a finite number > 0")
     config = config or SimConfig()
+    period_steps = _whole_steps("period_s", period_s, config.dt_s)
+    limit_steps = _whole_steps("max_time_s", max_time_s, config.dt_s)
     wind = episode_wind_kt(seed, wind_sigma_mps) if wind_kt is None else np.asarray(wind_kt, float)
     sim = Simulation(scenario, config=config, wind_kt=wind, record_every=record_every)
     policy.reset(scenario, config, seed)
     decision_s: list[float] = []
     waypoints: list[np.ndarray] = []
     decision_times: list[float] = []
+    steps_done = 0  # counted in whole steps: a float clock could stall short of the limit
     start = time.perf_counter()
-    while not sim.done and sim.time_s < max_time_s - 1e-9:
+    while not sim.done and steps_done < limit_steps:
         t0 = time.perf_counter()
         action = np.asarray(policy.act(sim.view()), dtype=np.float64)
         decision_s.append(time.perf_counter() - t0)
         waypoints.append(action.copy())
         decision_times.append(sim.time_s)
-        sim.advance(action, min(period_s, max_time_s - sim.time_s))
+        steps = min(period_steps, limit_steps - steps_done)
+        sim.advance(action, steps * config.dt_s)
+        steps_done += steps
     wall = time.perf_counter() - start
     times, records = sim.recording()
     metrics = run_metrics(sim, seed=seed, wall_s=wall, decision_s=decision_s)

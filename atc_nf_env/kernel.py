@@ -383,6 +383,9 @@ def _advance_world(
             for i in range(n):
                 if status[i] != FLYING:
                     continue
+                # The first sub-step this call flies: the extremes start there, not at
+                # the airspeed held before it (a scenario's start airspeed was never flown).
+                first_flown = steps_flown[i] == 0 and command[i, C_FLEW] == 0.0
                 command[i, C_FLEW] = 2.0  # flew this sub-step (1: flew an earlier one)
                 u = command[i, C_U]
                 heading = state[i, S_HEADING]
@@ -418,9 +421,9 @@ def _advance_world(
                 state[i, S_TIME] += h
                 step_nm = math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
                 state[i, S_PATH] += step_nm
-                if u < min_airspeed[i]:
+                if first_flown or u < min_airspeed[i]:
                     min_airspeed[i] = u
-                if u > max_airspeed[i]:
+                if first_flown or u > max_airspeed[i]:
                     max_airspeed[i] = u
                 excursion = max(u_min - u, u - u_max)
                 if excursion > 0.0:
@@ -587,6 +590,52 @@ def steps_for(seconds: float, dt_s: float) -> int:
     return n_steps
 
 
+#: Parameters that must be > 0 (a zero or negative one divides by zero or flies backwards).
+_POSITIVE_PARAMS = {
+    nf.P_K: "k",
+    nf.P_LENGTH: "length_scale_nm",
+    nf.P_R_WORLD: "workspace radius",
+    nf.P_RADIUS: "aircraft_radius_nm",
+    nf.P_R_SENSE: "sensing_radius_nm",
+    nf.P_X: "f_cutoff",
+    nf.P_DELTA: "arrival_tolerance_nm",
+    nf.P_DT: "dt_s",
+    nf.P_U_CAP: "airspeed_cap_kt",
+    nf.P_P_FLOOR: "p_floor",
+    nf.P_GRAD_FLOOR: "grad_floor",
+}
+
+
+def _check_params(params: np.ndarray) -> None:
+    """The parameter vector's length, dtype and the ranges the compiled code divides by
+    (the compiled code reads it unchecked: a short vector would be read out of bounds)."""
+    if not isinstance(params, np.ndarray) or params.dtype != np.float64 or params.shape != (nf.N_PARAMS,):
+        shape = getattr(params, "shape", None)
+        dtype = getattr(params, "dtype", type(params).__name__)
+        raise ValueError(
+            f"params has shape {shape} and dtype {dtype}; expected ({nf.N_PARAMS},) float64 "
+            "from SimConfig.to_params"
+        )
+    if not params.flags.c_contiguous:
+        raise ValueError("params must be C-contiguous (as SimConfig.to_params returns it)")
+    if not np.isfinite(params).all():
+        raise ValueError(f"params contains NaN or inf at index {np.flatnonzero(~np.isfinite(params)).tolist()}")
+    for index, name in _POSITIVE_PARAMS.items():
+        if not params[index] > 0:
+            raise ValueError(f"params[{index}] ({name}) = {params[index]!r}: must be > 0")
+
+
+def _check_finite_result(state: np.ndarray) -> None:
+    """The kernel never hands back a non-finite state silently: that world's numbers are
+    meaningless (a setting far outside the calibrated range)."""
+    if not np.isfinite(state).all():
+        world, aircraft = np.argwhere(~np.isfinite(state).all(axis=2))[0]
+        raise FloatingPointError(
+            f"the integration produced NaN or inf (world {world}, aircraft {aircraft}); "
+            "the scenario or gains lie outside the range the NF is calibrated for"
+        )
+
+
 def advance(
     state: np.ndarray,
     waypoints: np.ndarray,
@@ -615,13 +664,26 @@ def advance(
         The ``Trace`` of the call.
 
     Raises:
-        ValueError: on a wrong shape or dtype, or a NaN/inf in any input.
+        TypeError: if ``state`` is not a numpy array.
+        ValueError: on a wrong shape, dtype or layout, a params vector of the wrong
+            length or with a non-positive step or scale, a duration that is not a whole
+            number of steps, or a NaN/inf in any input.
+        FloatingPointError: if the integration produced a non-finite state.
     """
+    if not isinstance(state, np.ndarray):
+        raise TypeError(f"state is a {type(state).__name__}; expected a numpy array (B, N, {N_STATE}) float64")
     if state.ndim != 3 or state.shape[2] != N_STATE or state.dtype != np.float64:
         raise ValueError(
             f"state has shape {state.shape} and dtype {state.dtype}; expected (B, N, {N_STATE}) float64"
         )
+    if not (state.flags.c_contiguous and state.flags.writeable):
+        raise ValueError("state must be a C-contiguous, writeable array: it is advanced in place")
     n_worlds, n_aircraft, _ = state.shape
+    if n_worlds < 1 or n_aircraft < 1:
+        raise ValueError(f"state has shape {state.shape}; expected B >= 1 worlds of N >= 1 aircraft slots")
+    for name, array in (("waypoints", waypoints), ("wind_kt", wind_kt)):
+        if np.iscomplexobj(array):
+            raise ValueError(f"{name} is complex; expected real numbers")
     waypoints = np.ascontiguousarray(waypoints, dtype=np.float64)
     wind_kt = np.ascontiguousarray(wind_kt, dtype=np.float64)
     if waypoints.shape != (n_worlds, n_aircraft, 2):
@@ -630,11 +692,12 @@ def advance(
         )
     if wind_kt.shape != (n_worlds, 2):
         raise ValueError(f"wind_kt has shape {wind_kt.shape}; expected (B, 2) = ({n_worlds}, 2)")
+    _check_params(params)
     for name, array in (("state", state), ("waypoints", waypoints), ("wind_kt", wind_kt)):
         if not np.isfinite(array).all():
             raise ValueError(f"{name} contains NaN or inf; all values must be finite")
-    if record_every < 0:
-        raise ValueError(f"record_every = {record_every}: must be >= 0")
+    if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 0:
+        raise ValueError(f"record_every = {record_every!r}: must be an integer >= 0")
     n_steps = steps_for(seconds, float(params[nf.P_DT]))
     grad, command = (scratch or _DEFAULT_SCRATCH).get(n_worlds, n_aircraft)
     n_record = n_steps // record_every + 1 if record_every > 0 else 0
@@ -674,6 +737,7 @@ def advance(
         trace.min_separation_nm[0] = sep
         trace.steps_done[0] = done
         trace.violated[0] = bad
+        _check_finite_result(state)
         return trace
     _advance_batch(
         state,
@@ -695,6 +759,7 @@ def advance(
         trace.record,
         max(record_every, 1),
     )
+    _check_finite_result(state)
     return trace
 
 

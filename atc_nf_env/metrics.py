@@ -14,7 +14,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from atc_nf_env.kernel import ARRIVED, LEFT, NO_PAIR_SEPARATION_NM, S_PATH, S_STATUS, S_TIME
+from atc_nf_env.kernel import ARRIVED, LEFT, NO_PAIR_SEPARATION_NM, S_PATH, S_STATUS, S_TIME, S_X, S_Y
 from atc_nf_env.config import SimConfig
 from atc_nf_env.simulation import Simulation
 
@@ -62,7 +62,10 @@ def run_metrics(
     state = sim.state[0, : sim.n_aircraft]
     stats = sim.stats
     decision_list = list(decision_s)
-    arrived = state[:, S_STATUS] == ARRIVED
+    # An arrival needs a finite position and path: a NaN compares as "close" nowhere, but
+    # it must never be counted as a success either.
+    finite = np.isfinite(state[:, [S_X, S_Y, S_PATH, S_TIME]]).all(axis=1)
+    arrived = (state[:, S_STATUS] == ARRIVED) & finite
     flown = int(stats.steps_flown.sum())
     min_sep = stats.min_separation_nm
     return RunMetrics(

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from atc_nf_env import kernel
+from atc_nf_env.calibration import check_calibrated
 from atc_nf_env.config import SimConfig
 from atc_nf_env.kernel import (
     ABSENT,
@@ -175,6 +176,7 @@ class Simulation:
         if wind.shape != (2,) or not np.isfinite(wind).all():
             raise ValueError(f"wind_kt = {wind_kt!r}: must be two finite numbers (east, north) in kt")
         self.wind_kt = wind
+        check_calibrated(self.config, scenario.workspace_radius_nm)
         self.params = self.config.to_params(scenario.workspace_radius_nm)
         self.record_every = record_every
         self.state = initial_state(scenario)

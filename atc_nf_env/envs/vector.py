@@ -30,6 +30,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from atc_nf_env import kernel
+from atc_nf_env.calibration import check_calibrated
 from atc_nf_env.envs import EnvConfig, ScenarioSource, draw_episode_seed, episode_wind
 from atc_nf_env.envs.actions import waypoints_for_state
 from atc_nf_env.envs.centralized import validate_step_actions
@@ -68,6 +69,7 @@ class BatchWorlds:
         self.source = ScenarioSource(cfg.scenario)
         self.n_slots = self.source.slots(cfg.max_aircraft, where)
         self.obs_spec = ObservationSpec.for_config(cfg.config, cfg.n_neighbours, cfg.expose_wind)
+        check_calibrated(cfg.config, self.source.workspace_radius_nm)
         self.params = cfg.config.to_params(self.source.workspace_radius_nm)
         b, m = self.num_envs, self.n_slots
         self.state = kernel.new_state(b, m)
