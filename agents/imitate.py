@@ -535,6 +535,20 @@ def save_stage(model: Any, path: Path, args: Args, command: str, stage: str, ext
 # ------------------------------------------------------------------ main
 
 
+def _check_expert(args: Args) -> None:
+    """Refuse the expert's settings before any demonstration starts."""
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.episode import whole_steps
+    from baselines import MCMCMPC
+
+    try:
+        MCMCMPC(extractions=args.expert_extractions, horizon=args.expert_horizon)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"--expert-extractions/--expert-horizon: {error}") from None
+    whole_steps("--max-minutes (in s)", args.max_minutes * 60.0, SimConfig().dt_s)
+    parse_episodes(args.episodes)
+
+
 def run(args: Args, command: str) -> dict[str, Any]:
     import torch
     from torch.utils.tensorboard import SummaryWriter
@@ -545,6 +559,7 @@ def run(args: Args, command: str) -> dict[str, Any]:
 
     if args.bc_loss not in ("nll", "mse"):
         raise ValueError(f"--bc-loss {args.bc_loss!r}: allowed: nll, mse")
+    _check_expert(args)
     torch.set_num_threads(max(1, args.torch_threads))
     args.out.mkdir(parents=True, exist_ok=True)
     log_path = args.out / "log.json"

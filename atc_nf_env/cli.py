@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -82,13 +83,35 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _check_output_file(path: Path | None, option: str) -> None:
-    """Refuse a file whose folder does not exist, rather than create folders silently."""
-    if path is not None and not path.parent.is_dir():
+    """Refuse, before anything flies, an output file that cannot be written: a folder that
+    does not exist (rather than create folders silently), a directory, no write access."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise ValueError(f"{option} {path} is a directory; give a file path")
+    if not path.parent.is_dir():
         raise ValueError(f"{option} {path}: the folder {path.parent} does not exist; create it first")
+    if not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise ValueError(f"{option} {path} is not writable")
+
+
+def _check_output_folder(path: Path | None, option: str) -> None:
+    """Create an output folder now, or refuse it, before anything flies."""
+    if path is None:
+        return
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{option} {path} is a file; give a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ValueError(f"{option} {path}: cannot create the folder: {error.strerror}") from None
+    if not os.access(path, os.W_OK):
+        raise ValueError(f"{option} {path} is not writable")
 
 
 def _fly(args: argparse.Namespace) -> int:
     _check_output_file(args.summary_json, "--summary-json")
+    _check_output_folder(args.plots, "--plots")
     _check_output_file(args.animate, "--animate")
     scenario = make_scenario(args.scenario, seed=args.seed)
     policy = make_policy(args.policy, **_policy_kwargs(args))
@@ -245,6 +268,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return args.handler(args)
     except ValueError as error:
+        print(f"atc-nf {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:  # an output that cannot be written (e.g. reproduce --figures)
         print(f"atc-nf {args.command}: error: {error}", file=sys.stderr)
         return 2
 

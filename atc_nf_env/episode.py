@@ -11,12 +11,15 @@ import numpy as np
 from atc_nf_env.config import SimConfig
 from atc_nf_env.metrics import RunMetrics, run_metrics
 from atc_nf_env.policy import Policy
-from atc_nf_env.scenarios import Scenario
+from atc_nf_env.scenarios import Scenario, check_seed
 from atc_nf_env.simulation import Simulation, sample_wind_kt
 from atc_nf_env.units import DECISION_PERIOD_S, WIND_SIGMA_MPS
 
 #: Default time limit of an episode, s: room for the 6-aircraft NF roundabout.
 MAX_EPISODE_S: float = 4 * 3600.0
+#: Longest time limit accepted, s: no aircraft stays airborne a day, and a longer limit
+#: would let an NF holding orbit fly (and a study run) for ever.
+MAX_TIME_LIMIT_S: float = 24 * 3600.0
 
 
 @dataclass
@@ -37,9 +40,8 @@ class EpisodeResult:
 def episode_wind_kt(seed: int | None, wind_sigma_mps: float) -> np.ndarray:
     """The hidden wind of the episode with this seed (kt): a stream of its own, so that
     a policy's randomness never changes the wind of a seed."""
-    if seed is not None and (not isinstance(seed, (int, np.integer)) or seed < 0):
-        raise ValueError(f"seed = {seed!r}: must be an integer >= 0 (or None, which means 0)")
-    rng = np.random.default_rng([0 if seed is None else int(seed), 0x57494E44])
+    seed = 0 if seed is None else check_seed(seed)
+    rng = np.random.default_rng([seed, 0x57494E44])
     return sample_wind_kt(rng, wind_sigma_mps)
 
 
@@ -71,7 +73,7 @@ def warm_up(
     return time.perf_counter() - start
 
 
-def _whole_steps(name: str, seconds: float, dt_s: float) -> int:
+def whole_steps(name: str, seconds: float, dt_s: float) -> int:
     """``seconds`` as a whole number >= 1 of integration steps of ``dt_s``, or a ValueError
     saying which durations are allowed (checked before anything flies)."""
     if isinstance(seconds, bool) or not isinstance(seconds, (int, float, np.integer, np.floating)):
@@ -84,6 +86,11 @@ def _whole_steps(name: str, seconds: float, dt_s: float) -> int:
         raise ValueError(
             f"{name} = {seconds!r} s is not a whole number of integration steps of {dt_s:g} s; "
             f"allowed: a multiple of {dt_s:g} s (e.g. {max(steps, 1) * dt_s:g})"
+        )
+    if steps * dt_s > MAX_TIME_LIMIT_S:
+        raise ValueError(
+            f"{name} = {seconds!r} s: longer than any flight ({MAX_TIME_LIMIT_S:g} s = 24 h); allowed: a multiple "
+            f"of {dt_s:g} s up to {MAX_TIME_LIMIT_S:g} s"
         )
     return steps
 
@@ -119,9 +126,9 @@ def run_episode(
         record_every: keep the state every this many integration steps (0: none).
     """
     config = config or SimConfig()
-    period_steps = _whole_steps("period_s", period_s, config.dt_s)
-    limit_steps = _whole_steps("max_time_s", max_time_s, config.dt_s)
-    wind = episode_wind_kt(seed, wind_sigma_mps) if wind_kt is None else np.asarray(wind_kt, float)
+    period_steps = whole_steps("period_s", period_s, config.dt_s)
+    limit_steps = whole_steps("max_time_s", max_time_s, config.dt_s)
+    wind = episode_wind_kt(seed, wind_sigma_mps) if wind_kt is None else wind_kt  # Simulation checks it
     sim = Simulation(scenario, config=config, wind_kt=wind, record_every=record_every)
     policy.reset(scenario, config, seed)
     decision_s: list[float] = []
@@ -131,7 +138,10 @@ def run_episode(
     start = time.perf_counter()
     while not sim.done and steps_done < limit_steps:
         t0 = time.perf_counter()
-        action = np.asarray(policy.act(sim.view()), dtype=np.float64)
+        action = policy.act(sim.view())
+        if np.iscomplexobj(action):
+            raise ValueError(f"{type(policy).__name__}.act returned complex waypoints; expected real (N, 2) nm")
+        action = np.asarray(action, dtype=np.float64)
         decision_s.append(time.perf_counter() - t0)
         waypoints.append(action.copy())
         decision_times.append(sim.time_s)

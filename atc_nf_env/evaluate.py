@@ -16,8 +16,8 @@ before it under ``compile_s`` (0 for later runs).
 
 from __future__ import annotations
 
+import itertools
 import json
-import math
 import os
 import sys
 from dataclasses import dataclass, field
@@ -28,10 +28,11 @@ import numpy as np
 
 from atc_nf_env import build, kernel
 from atc_nf_env.config import SimConfig
-from atc_nf_env.episode import MAX_EPISODE_S, run_episode, warm_up
+from atc_nf_env.episode import MAX_EPISODE_S, run_episode, warm_up, whole_steps
 from atc_nf_env.metrics import RunMetrics, peak_rss_mb, summarize
 from atc_nf_env.policy import make_policy  # noqa: F401  (re-exported: the evaluator resolves policies by name)
-from atc_nf_env.scenarios import make_scenario
+from atc_nf_env.scenarios import MAX_SEED, make_scenario
+from atc_nf_env.simulation import check_wind_sigma
 from atc_nf_env.units import WIND_SIGMA_MPS
 
 BACKENDS = ("local", "ray")
@@ -57,8 +58,13 @@ class Study:
     airspeed_every_s: float | None = None
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.wind_sigma_mps) and self.wind_sigma_mps >= 0):
-            raise ValueError(f"wind_sigma = {self.wind_sigma_mps!r} m/s: must be a finite number >= 0")
+        check_wind_sigma(self.wind_sigma_mps)
+        if not isinstance(self.policy_kwargs, dict):
+            raise TypeError(f"policy_kwargs = {self.policy_kwargs!r}: must be a dict of the policy's settings")
+        # A time limit off the integration grid is refused here, before any worker starts.
+        whole_steps("max_time_s", self.max_time_s, SimConfig().dt_s)
+        if self.airspeed_every_s is not None:
+            whole_steps("airspeed_every_s", self.airspeed_every_s, SimConfig().dt_s)
         # Fail before any worker starts on a bad name or setting.
         make_policy(self.policy, **self.policy_kwargs)
         make_scenario(self.scenario, seed=0)
@@ -161,20 +167,59 @@ def _worker_init() -> None:
     numba.set_num_threads(1)
 
 
-def _run_local(study: Study, seeds: list[int], workers: int) -> Iterator[dict[str, Any]]:
+#: Said when a worker process dies before running anything: the usual cause is a script
+#: that calls ``evaluate`` at its top level (spawned workers import the main module).
+MAIN_GUARD_HINT = (
+    "a worker process died before running any episode. If you call evaluate() from a script, put the call "
+    'under `if __name__ == "__main__":` (worker processes are spawned and import your main module; without '
+    "the guard each of them starts the study again)"
+)
+
+
+def _check_not_bootstrapping() -> None:
+    import multiprocessing
+
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        raise RuntimeError("evaluate() called while a worker process was starting: " + MAIN_GUARD_HINT)
+
+
+def _run_local(study: Study, seeds: Iterator[int], workers: int) -> Iterator[dict[str, Any]]:
     if workers == 1:
         for seed in seeds:
             yield run_one(study, seed)
         return
     import multiprocessing as mp
-    from functools import partial
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
 
-    context = mp.get_context("spawn")  # numba's threads do not survive a fork safely
-    with context.Pool(workers, initializer=_worker_init) as pool:
-        yield from pool.imap_unordered(partial(run_one, study), seeds)
+    # spawn: numba's threads do not survive a fork safely. A ProcessPoolExecutor (unlike
+    # multiprocessing.Pool) never restarts a worker that died: the study fails at once.
+    context = mp.get_context("spawn")
+    finished = 0
+    seeds = iter(seeds)
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
+        # Runs are planned lazily, two per worker ahead: memory does not grow with ``runs``.
+        pending = {pool.submit(run_one, study, seed) for seed in itertools.islice(seeds, 2 * workers)}
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                try:
+                    record = future.result()
+                except BrokenProcessPool:
+                    for other in pending:
+                        other.cancel()
+                    if finished == 0:
+                        raise RuntimeError(MAIN_GUARD_HINT) from None
+                    raise RuntimeError(
+                        "a worker process died (killed, or out of memory); the runs finished so far are kept "
+                        "in the results file: finish the study with resume"
+                    ) from None
+                finished += 1
+                yield record
+            pending |= {pool.submit(run_one, study, seed) for seed in itertools.islice(seeds, len(done))}
 
 
-def _run_ray(study: Study, seeds: list[int], workers: int) -> Iterator[dict[str, Any]]:
+def _run_ray(study: Study, seeds: Iterator[int], workers: int) -> Iterator[dict[str, Any]]:
     try:
         import ray
     except ImportError:
@@ -189,34 +234,88 @@ def _run_ray(study: Study, seeds: list[int], workers: int) -> Iterator[dict[str,
         return run_one(study, seed)
 
     try:
-        pending = [remote_run.remote(seed) for seed in seeds]
+        pending = [remote_run.remote(seed) for seed in itertools.islice(seeds, 2 * workers)]
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
+            pending.extend(remote_run.remote(seed) for seed in itertools.islice(seeds, 1))
             yield ray.get(done[0])
     finally:
         if started_here:
             ray.shutdown()
 
 
+_RUN_FIELDS = tuple(RunMetrics.__dataclass_fields__)
+
+
+def _problem_of_run(record: Any) -> str | None:
+    """What makes ``record`` not a run record, or None."""
+    if not isinstance(record, dict):
+        return f"a JSON {type(record).__name__}, not an object"
+    missing = [name for name in _RUN_FIELDS if name not in record]
+    if missing:
+        return f"a run record without {', '.join(missing[:3])}{' …' if len(missing) > 3 else ''}"
+    seed = record["seed"]
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        return f"a run record with seed {seed!r}"
+    return None
+
+
+def _scan_results(path: Path) -> tuple[dict[str, Any] | None, list[dict[str, Any]], int]:
+    """(header, runs, intact_bytes) of a results file; ``intact_bytes`` ends the last intact
+    line, so that a last line damaged by an interruption (cut off, with or without its
+    newline) can be dropped. A damaged line anywhere else, a file that does not start
+    with the header, or a seed written twice raises ValueError."""
+    data = path.read_bytes()
+    lines = data.split(b"\n")
+    # The index of the last line holding anything: only that one may be damaged.
+    last = max((k for k, line in enumerate(lines) if line.strip()), default=-1)
+    header: dict[str, Any] | None = None
+    runs: list[dict[str, Any]] = []
+    seen: set[int] = set()
+    offset = intact = 0
+    for number, raw in enumerate(lines):
+        end = offset + len(raw) + 1
+        if raw.strip():
+            problem = None
+            try:
+                record = json.loads(raw)
+            except (json.JSONDecodeError, UnicodeDecodeError):
+                problem, record = "not JSON", None
+            if problem is None:
+                if header is None:
+                    if not (isinstance(record, dict) and record.get("type") == "header"):
+                        problem = "not the header of an atc-nf evaluate results file"
+                else:
+                    problem = _problem_of_run(record)
+            if problem is not None:
+                if number == last:
+                    break  # the line being written when the study was interrupted
+                raise ValueError(
+                    f"{path}: line {number + 1} is {problem}; the file is damaged or not a results file "
+                    "of atc-nf evaluate (only its last line may be cut off by an interruption)"
+                )
+            if header is None:
+                header = record
+            else:
+                if record["seed"] in seen:
+                    raise ValueError(f"{path}: line {number + 1} repeats seed {record['seed']}; the file is damaged")
+                seen.add(record["seed"])
+                runs.append(record)
+            intact = min(end, len(data))
+        offset = end
+    return header, runs, intact
+
+
 def read_results(path: Path) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
-    """(header, runs) of a results file; a last line cut off by an interruption is ignored."""
+    """(header, runs) of a results file; a last line damaged by an interruption is ignored.
+
+    Raises:
+        ValueError: on a damaged line before the last one, a file that does not start
+            with a results header, or a seed written twice.
+    """
     if not path.exists():
         return None, []
-    header, runs = None, []
-    lines = path.read_text().splitlines()
-    for number, line in enumerate(lines):
-        if not line.strip():
-            continue
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
-            if number == len(lines) - 1:
-                break  # the run being written when the study was interrupted
-            raise ValueError(f"{path}: line {number + 1} is not JSON; the file is damaged") from None
-        if record.get("type") == "header":
-            header = record
-        else:
-            runs.append(record)
+    header, runs, _ = _scan_results(path)
     return header, runs
 
 
@@ -256,58 +355,66 @@ def evaluate(
         worker process warms up before its first timed run, and the longest warm-up is
         ``compile_s``.
     """
-    if not isinstance(runs, int) or runs < 1:
-        raise ValueError(f"runs = {runs!r}: must be an integer >= 1")
-    if not isinstance(first_seed, int) or first_seed < 0:
-        raise ValueError(f"first_seed = {first_seed!r}: must be an integer >= 0")
+    for name, value, least in (("runs", runs, 1), ("first_seed", first_seed, 0)):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise TypeError(f"{name} = {value!r}: must be an integer >= {least}")
+        if value < least:
+            raise ValueError(f"{name} = {value!r}: must be an integer >= {least}")
+    if first_seed + runs > MAX_SEED + 1:
+        raise ValueError(
+            f"runs = {runs}, first_seed = {first_seed}: seeds run to {first_seed + runs - 1}; every seed must be "
+            f"<= {MAX_SEED} (2**63 - 1, the environments' int64 seeds)"
+        )
     if backend not in BACKENDS:
         raise ValueError(f"backend = {backend!r}: allowed: {', '.join(BACKENDS)}")
-    workers = workers or os.cpu_count() or 1
-    if workers < 1:
-        raise ValueError(f"workers = {workers!r}: must be >= 1")
+    workers = (os.cpu_count() or 1) if workers is None else workers
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers = {workers!r}: must be an integer >= 1")
     if resume and out is None:
         raise ValueError("resume needs the results file (out) of the interrupted study")
+    _check_not_bootstrapping()
 
     header = study.header()
     done: dict[int, dict[str, Any]] = {}
     if out is not None:
+        out = Path(out)
+        if out.is_dir():
+            raise ValueError(f"out = {str(out)!r} is a directory; give the path of a .jsonl file")
         out.parent.mkdir(parents=True, exist_ok=True)
-        old_header, old_runs = read_results(out)
-        if old_runs or old_header:
-            if not resume:
-                raise ValueError(
-                    f"{out} already holds a study; finish it with --resume (resume=True in Python), "
-                    "or choose another file"
-                )
-            if old_header is not None and old_header.get("build") != header["build"]:
-                raise ValueError(
-                    f"{out} holds runs of another build ({old_header.get('build')!r}; this one is "
-                    f"{header['build']!r}): the sources or libraries that fly a run changed since, so its "
-                    "runs cannot be resumed; fly the study again into a new file"
-                )
-            if old_header is not None and {k: old_header.get(k) for k in header} != header:
-                raise ValueError(
-                    f"{out} holds a different study ({old_header.get('policy')!r} on "
-                    f"{old_header.get('scenario')!r}, wind {old_header.get('wind_sigma_mps')}); cannot resume it"
-                )
-            done = {int(r["seed"]): r for r in old_runs}
-            _truncate_partial_line(out)
+        old_header, old_runs, intact = _scan_results(out) if out.exists() else (None, [], 0)
+        if out.exists() and out.stat().st_size and not resume:
+            raise ValueError(
+                f"{out} already holds a study; finish it with --resume (resume=True in Python), or choose another file"
+            )
+        if old_header is not None and old_header.get("build") != header["build"]:
+            raise ValueError(
+                f"{out} holds runs of another build ({old_header.get('build')!r}; this one is "
+                f"{header['build']!r}): the sources or libraries that fly a run changed since, so its "
+                "runs cannot be resumed; fly the study again into a new file"
+            )
+        if old_header is not None:
+            _check_same_study(out, old_header, header, [int(r["seed"]) for r in old_runs], first_seed, runs)
+        # Runs beyond this study's seeds (a longer study in the same file) stay in the
+        # file but not in this summary, which covers first_seed … first_seed + runs − 1.
+        done = {int(r["seed"]): r for r in old_runs if r["seed"] < first_seed + runs}
+        if out.exists() and intact < out.stat().st_size:
+            _truncate(out, intact)  # a last line damaged by the interruption
+        if intact and not out.read_bytes().endswith(b"\n"):
+            _append_bytes(out, b"\n")  # an intact last line whose newline the interruption cut
         if old_header is None:
-            with out.open("a") as handle:
-                handle.write(json.dumps(header) + "\n")
-    seeds = [s for s in range(first_seed, first_seed + runs) if s not in done]
-    records = [done[s] for s in range(first_seed, first_seed + runs) if s in done]
+            _append_line(out, header)
+    # Planned lazily: a huge ``runs`` costs nothing until its runs finish.
+    seeds = (s for s in range(first_seed, first_seed + runs) if s not in done)
+    records = list(done.values())
+    todo = runs - len(done)
 
     runner = _run_ray if backend == "ray" else _run_local
-    stream: Iterable[dict[str, Any]] = runner(study, seeds, min(workers, max(len(seeds), 1))) if seeds else []
+    stream: Iterable[dict[str, Any]] = runner(study, seeds, min(workers, todo)) if todo else []
     bar = _progress_bar(total=runs, initial=len(records), enabled=progress)
     try:
         for record in stream:
             if out is not None:
-                with out.open("a") as handle:
-                    handle.write(json.dumps(record) + "\n")
-                    handle.flush()
-                    os.fsync(handle.fileno())
+                _append_line(out, record)
             records.append(record)
             if on_run is not None:
                 on_run(record)
@@ -317,8 +424,46 @@ def evaluate(
     return summarize_records(records)
 
 
+def _check_same_study(
+    out: Path, old: dict[str, Any], new: dict[str, Any], seeds: list[int], first_seed: int, runs: int
+) -> None:
+    """Refuse to resume a file of another study, or of the same study from another first
+    seed: one file holds one range of seeds from one first seed, never two ranges."""
+    differing = [key for key in new if old.get(key) != new[key]]
+    if differing:
+        described = ", ".join(f"{key} {old.get(key)!r} there, {new[key]!r} here" for key in differing[:3])
+        raise ValueError(f"{out} holds a different study ({described}); cannot resume it")
+    if seeds and not first_seed <= min(seeds) < first_seed + runs:
+        raise ValueError(
+            f"{out} holds the study from seed {min(seeds)}, not {first_seed}: resuming would mix two ranges of "
+            "seeds in one file; resume with the --seed the study was started with, or choose another file"
+        )
+
+
+def _append_line(path: Path, record: dict[str, Any]) -> None:
+    """Append one JSON line and make it durable before going on (a kill loses at most the
+    line being written, which resume drops)."""
+    _append_bytes(path, (json.dumps(record, allow_nan=False) + "\n").encode())
+
+
+def _append_bytes(path: Path, data: bytes) -> None:
+    with path.open("ab") as handle:
+        handle.write(data)
+        handle.flush()
+        os.fsync(handle.fileno())
+
+
+def _truncate(path: Path, size: int) -> None:
+    with path.open("r+b") as handle:
+        handle.truncate(size)
+        handle.flush()
+        os.fsync(handle.fileno())
+
+
 def summarize_records(records: list[dict[str, Any]]) -> dict[str, Any]:
-    """The study summary from the results file's run records."""
+    """The study summary from the results file's run records, in seed order: the
+    summary does not depend on the order in which workers finished."""
+    records = sorted(records, key=lambda r: r["seed"])
     warm_ups = [r["compile_s"] for r in records if r.get("compile_s") is not None]
     summary = summarize(
         [_metrics_from(r) for r in records],
@@ -334,13 +479,6 @@ def summarize_records(records: list[dict[str, Any]]) -> dict[str, Any]:
         sum(r["decision_s_mean"] * r["decisions"] for r in records) / decisions if decisions else 0.0
     )
     return summary
-
-
-def _truncate_partial_line(path: Path) -> None:
-    """Drop a last line cut off by an interruption, so that appends start on a fresh line."""
-    data = path.read_bytes()
-    if data and not data.endswith(b"\n"):
-        path.write_bytes(data[: data.rfind(b"\n") + 1])
 
 
 class _NoBar:

@@ -629,7 +629,7 @@ def _check_finite_result(state: np.ndarray) -> None:
     """The kernel never hands back a non-finite state silently: that world's numbers are
     meaningless (a setting far outside the calibrated range)."""
     if not np.isfinite(state).all():
-        world, aircraft = np.argwhere(~np.isfinite(state).all(axis=2))[0]
+        world, aircraft = np.argwhere(~np.isfinite(state).all(axis=2))[0].tolist()
         raise FloatingPointError(
             f"the integration produced NaN or inf (world {world}, aircraft {aircraft}); "
             "the scenario or gains lie outside the range the NF is calibrated for"
@@ -679,8 +679,6 @@ def advance(
     if not (state.flags.c_contiguous and state.flags.writeable):
         raise ValueError("state must be a C-contiguous, writeable array: it is advanced in place")
     n_worlds, n_aircraft, _ = state.shape
-    if n_worlds < 1 or n_aircraft < 1:
-        raise ValueError(f"state has shape {state.shape}; expected B >= 1 worlds of N >= 1 aircraft slots")
     for name, array in (("waypoints", waypoints), ("wind_kt", wind_kt)):
         if np.iscomplexobj(array):
             raise ValueError(f"{name} is complex; expected real numbers")

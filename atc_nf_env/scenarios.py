@@ -61,8 +61,18 @@ class Scenario:
     def n_aircraft(self) -> int:
         return int(self.start_xy.shape[0])
 
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "Scenario":
+        """The reader of ``to_dict``'s dict (see ``scenario_from_dict`` for its keys)."""
+        return scenario_from_dict(data)
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> "Scenario":
+        """A scenario from a JSON file holding ``to_dict``'s dict."""
+        return scenario_from_json(path)
+
     def to_dict(self) -> dict[str, Any]:
-        """The scenario as a JSON-ready dict (headings in degrees), readable by ``scenario_from_dict``."""
+        """The scenario as a JSON-ready dict (headings in degrees), read back by ``Scenario.from_dict``."""
         return {
             "name": self.name,
             "workspace_radius_nm": self.workspace_radius_nm,
@@ -206,13 +216,25 @@ def random_encounter(
 
 
 def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+    """A real number: Python's or numpy's (np.float32, np.int64 …), never a bool."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
 
 
-def _check_seed(seed: Any) -> int:
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-        raise ValueError(f"seed = {seed!r}: must be an integer >= 0")
+#: Largest seed anywhere in the project: episode seeds are kept as int64 (env infos).
+MAX_SEED: int = 2**63 - 1
+
+
+def check_seed(seed: Any, name: str = "seed") -> int:
+    """The one seed rule of the project (scenarios, episodes, every environment, the
+    evaluator): an integer (Python or numpy, not a bool) in [0, 2**63 - 1], as
+    Gymnasium's ``np_random`` asks for a non-negative integer. Returns it as an int;
+    raises ValueError naming ``name`` otherwise."""
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"{name} = {seed!r}: must be an integer in [0, 2**63 - 1] (or None where allowed)")
     return int(seed)
+
+
+_check_seed = check_seed
 
 
 _ALLOWED_KEYS = {"name", "aircraft", "workspace_radius_nm", "start_airspeed_kt"}

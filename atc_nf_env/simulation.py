@@ -7,6 +7,7 @@ any batch size (the MPC's candidates start from copies of a world's state).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -65,11 +66,25 @@ def initial_state(scenario: Scenario, n_worlds: int = 1, n_slots: int | None = N
     return state
 
 
+#: Largest σ of the wind accepted, m/s: four times the NF's airspeed cap (772 m/s). Far
+#: beyond any wind an aircraft makes headway in, and far below where a sample overflows.
+WIND_SIGMA_MAX_MPS: float = 3000.0
+
+
+def check_wind_sigma(sigma_mps: float) -> float:
+    """``sigma_mps`` as a float, or a ValueError/TypeError naming ``wind_sigma``."""
+    if isinstance(sigma_mps, bool) or not isinstance(sigma_mps, (int, float, np.integer, np.floating)):
+        raise TypeError(f"wind_sigma = {sigma_mps!r}: must be a number of m/s")
+    if not (math.isfinite(sigma_mps) and 0 <= sigma_mps <= WIND_SIGMA_MAX_MPS):
+        raise ValueError(
+            f"wind_sigma = {sigma_mps!r} m/s: must be a finite number in [0, {WIND_SIGMA_MAX_MPS:g}] m/s"
+        )
+    return float(sigma_mps) + 0.0  # -0.0 becomes 0.0 (numpy refuses a scale of -0.0)
+
+
 def sample_wind_kt(rng: np.random.Generator, sigma_mps: float = WIND_SIGMA_MPS) -> np.ndarray:
     """A constant wind for one episode: each component N(0, σ²) (paper IV-A), returned in kt."""
-    if not np.isfinite(sigma_mps) or sigma_mps < 0:
-        raise ValueError(f"wind_sigma = {sigma_mps!r} m/s: must be a finite number >= 0")
-    return rng.normal(0.0, sigma_mps, size=2) * KT_PER_MPS
+    return rng.normal(0.0, check_wind_sigma(sigma_mps), size=2) * KT_PER_MPS
 
 
 @dataclass(frozen=True)
@@ -172,7 +187,12 @@ class Simulation:
     ) -> None:
         self.scenario = scenario
         self.config = config or SimConfig()
-        wind = np.asarray(wind_kt, dtype=np.float64)
+        try:
+            if np.iscomplexobj(wind_kt):
+                raise TypeError("complex")
+            wind = np.asarray(wind_kt, dtype=np.float64)
+        except (TypeError, ValueError):
+            wind = np.full(1, np.nan)  # refused just below, naming wind_kt
         if wind.shape != (2,) or not np.isfinite(wind).all():
             raise ValueError(f"wind_kt = {wind_kt!r}: must be two finite numbers (east, north) in kt")
         self.wind_kt = wind
@@ -205,6 +225,8 @@ class Simulation:
 
     def advance(self, waypoints: np.ndarray, seconds: float) -> Trace:
         """Fly ``seconds`` toward ``waypoints`` (N, 2) nm; returns the kernel's trace."""
+        if np.iscomplexobj(waypoints):
+            raise ValueError("waypoints are complex; expected real numbers (N, 2) in nm")
         waypoints = np.asarray(waypoints, dtype=np.float64)
         if waypoints.shape != (self.n_aircraft, 2):
             raise ValueError(
@@ -259,5 +281,6 @@ __all__ = [
     "Simulation",
     "WorldView",
     "initial_state",
+    "check_wind_sigma",
     "sample_wind_kt",
 ]

@@ -22,6 +22,7 @@ from atc_nf_env.scenarios import converging, make_scenario
 from atc_nf_env.simulation import Simulation, initial_state
 from baselines import NFDirect
 from _faults import deadline
+from atc_nf_env.cli import main
 
 ONE_AIRCRAFT = {"aircraft": [{"start": [0.0, 0.0], "destination": [100.0, 0.0]}]}
 
@@ -160,3 +161,134 @@ def test_airspeed_extremes_cover_flown_steps_only(start_kt: float) -> None:
     assert result.metrics.airspeed_min_kt == pytest.approx(float(flown.min()))
     assert result.metrics.airspeed_max_kt < SimConfig().airspeed_cap_kt
     assert result.metrics.airspeed_min_kt > 0.0
+
+
+# ------------------------------------------------------------ 1 and 10 at the command line
+
+
+@pytest.mark.parametrize("command", ["fly", "evaluate"])
+@pytest.mark.parametrize("minutes", ["1e-9", "60.01"])
+def test_cli_refuses_a_time_limit_off_the_grid_at_once(command, minutes, capsys, tmp_path) -> None:
+    extra = ["--runs", "2", "--workers", "1", "--no-progress"] if command == "evaluate" else []
+    with deadline(60):
+        code = main([command, "--policy", "nf", "--max-minutes", minutes, *extra])
+    assert code == 2
+    assert "max_time_s" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag", ["--summary-json", "--plots", "--animate"])
+def test_cli_fly_refuses_an_unwritable_output_before_flying(flag, tmp_path, capsys) -> None:
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    target = blocker / "sub" / ("x.json" if flag != "--plots" else "figs")
+    assert main(["fly", "--policy", "nf", flag, str(target)]) == 2
+    err = capsys.readouterr().err
+    assert flag in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("flag", ["--summary-json", "--out"])
+def test_cli_evaluate_refuses_a_directory_as_output_file(flag, tmp_path, capsys) -> None:
+    assert main(["evaluate", "--policy", "nf", "--runs", "1", "--workers", "1", "--no-progress",
+                 flag, str(tmp_path)]) == 2
+    assert "is a directory" in capsys.readouterr().err
+
+
+def test_imitate_refuses_bad_expert_settings_before_any_demonstration(tmp_path, capsys) -> None:
+    pytest.importorskip("torch")
+    from agents import imitate
+
+    code = imitate.main(["--out", str(tmp_path / "im"), "--expert-extractions", "-1"])
+    assert code == 2
+    assert "extractions" in capsys.readouterr().err
+    assert not (tmp_path / "im" / "demos").exists()
+
+
+# ------------------------------------------------------------ 6. one seed rule
+
+
+def _envs():
+    import gymnasium as gym
+
+    import atc_nf_env  # noqa: F401 - registers the env
+    from atc_nf_env.envs.centralized import EncounterEnv
+
+    yield "EncounterEnv", lambda: EncounterEnv(scenario="converging-3")
+    yield "parallel_env", lambda: atc_nf_env.parallel_env(scenario="converging-3")
+    yield "vector", lambda: gym.make_vec("atc_nf_env/Encounter-v0", num_envs=2, scenario="converging-3")
+
+
+@pytest.mark.parametrize("seed", [-1, True, 2**63, 2.0, "0", np.int64(-3)])
+@pytest.mark.parametrize("env_name", ["EncounterEnv", "parallel_env", "vector"])
+def test_every_env_refuses_a_bad_seed_with_one_error(env_name, seed) -> None:
+    make = dict(_envs())[env_name]
+    env = make()
+    with pytest.raises(ValueError, match=r"seed.* must be an integer in \[0, 2\*\*63 - 1\]"):
+        env.reset(seed=seed)
+    env.close()
+
+
+@pytest.mark.parametrize("env_name", ["EncounterEnv", "parallel_env"])
+def test_every_env_accepts_the_largest_seed_and_numpy_ints(env_name) -> None:
+    env = dict(_envs())[env_name]()
+    env.reset(seed=2**63 - 1)
+    env.reset(seed=np.int64(7))
+    env.close()
+
+
+def test_run_episode_and_scenarios_follow_the_same_seed_rule() -> None:
+    for seed in (-1, True, 2**63, 1.5):
+        with pytest.raises(ValueError, match=r"seed = .* must be an integer in \[0, 2\*\*63 - 1\]"):
+            run_episode(NFDirect(), converging(3), seed=seed, max_time_s=300.0)
+        with pytest.raises(ValueError, match=r"seed = .* must be an integer in \[0, 2\*\*63 - 1\]"):
+            make_scenario("random-3", seed=seed)
+
+
+# ------------------------------------------------------------ 10. smaller ones
+
+
+@pytest.mark.parametrize("scalar", [np.float32(10.0), np.int64(10), np.float64(10.0), np.int32(10)])
+def test_numpy_scalars_are_numbers_in_scenario_dicts(scalar) -> None:
+    data = {"aircraft": [{"start": [scalar, 0.0], "destination": [100.0, scalar], "heading_deg": scalar}],
+            "workspace_radius_nm": np.float32(1500.0)}
+    scenario = make_scenario(data)
+    assert scenario.start_xy[0, 0] == 10.0 and scenario.dest_xy[0, 1] == 10.0
+
+
+def test_numpy_bools_are_not_numbers_in_scenario_dicts() -> None:
+    with pytest.raises(ValueError, match=r"aircraft\[0\]\.start"):
+        make_scenario({"aircraft": [{"start": [np.bool_(True), 0.0], "destination": [100.0, 0.0]}]})
+
+
+@pytest.mark.parametrize("sigma", [1.7e308, 1e5, -1.0, math.nan])
+def test_a_huge_wind_sigma_is_blamed_on_wind_sigma(sigma) -> None:
+    from atc_nf_env.evaluate import Study
+
+    with pytest.raises(ValueError, match=r"wind_sigma = "):
+        run_episode(NFDirect(), converging(3), seed=0, wind_sigma_mps=sigma, max_time_s=300.0)
+    with pytest.raises(ValueError, match=r"wind_sigma = "):
+        Study(policy="nf", scenario="converging-3", wind_sigma_mps=sigma)
+
+
+def test_complex_waypoints_and_actions_are_refused() -> None:
+    from atc_nf_env.envs.centralized import EncounterEnv
+
+    class ComplexPolicy(NFDirect):
+        def act(self, view):
+            return super().act(view) + 1j
+
+    with pytest.raises(ValueError, match=r"complex"):
+        run_episode(ComplexPolicy(), converging(3), seed=0, max_time_s=300.0)
+    with pytest.raises(ValueError, match=r"complex"):
+        Simulation(converging(3)).advance(converging(3).dest_xy + 0j, 300.0)
+    env = EncounterEnv(scenario="converging-3")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"complex"):
+        env.step(np.zeros((3, 2)) + 0.5j)
+
+
+def test_scenario_dict_round_trip_has_one_home() -> None:
+    from atc_nf_env.scenarios import Scenario
+
+    scenario = make_scenario("random-4", seed=3)
+    again = Scenario.from_dict(scenario.to_dict())
+    assert np.allclose(again.start_xy, scenario.start_xy) and np.allclose(again.dest_heading, scenario.dest_heading)

@@ -45,6 +45,7 @@ from atc_nf_env.envs.actions import ActionMapping
 from atc_nf_env.envs.rewards import RewardWeights
 from atc_nf_env.episode import episode_wind_kt
 from atc_nf_env.scenarios import Scenario, make_scenario
+from atc_nf_env.simulation import check_wind_sigma
 from atc_nf_env.units import DECISION_PERIOD_S, WIND_SIGMA_MPS
 
 #: Default time limit, min: the 6-aircraft encounter's flights take ~70-90 min.
@@ -101,9 +102,10 @@ class EnvConfig:
         return cls(**values)
 
     def __post_init__(self) -> None:
-        sigma = self.wind_sigma
-        if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not (math.isfinite(sigma) and sigma >= 0):
-            raise ValueError(f"wind_sigma = {sigma!r}: must be a finite number >= 0 (m/s)")
+        try:
+            check_wind_sigma(self.wind_sigma)
+        except TypeError as error:  # the envs' settings are ValueErrors throughout
+            raise ValueError(str(error)) from None
         if self.render_mode is not None and self.render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode = {self.render_mode!r}: allowed: None, {', '.join(map(repr, RENDER_MODES))}")
         if self.max_aircraft is not None and (

@@ -10,6 +10,7 @@ import numpy as np
 from gymnasium import spaces
 
 from atc_nf_env.envs import EnvConfig, ScenarioSource, draw_episode_seed, episode_wind
+from atc_nf_env.scenarios import check_seed
 from atc_nf_env.envs.actions import waypoints_for_state
 from atc_nf_env.envs.observations import ObservationSpec
 from atc_nf_env import kernel
@@ -235,6 +236,8 @@ def validate_step_actions(action: Any, shape: tuple[int, ...], where: str) -> tu
         ValueError: wrong shape, not numbers, NaN or inf; the message says what is allowed.
     """
     try:
+        if np.iscomplexobj(action):  # float64 would silently drop the imaginary part
+            raise TypeError("complex numbers")
         array = np.asarray(action, dtype=np.float64)
     except (TypeError, ValueError) as error:
         raise ValueError(
@@ -347,8 +350,9 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
         self._viewer: Any = None
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        seed = None if seed is None else check_seed(seed)  # the project's one seed rule
         super().reset(seed=seed)
-        episode_seed = int(seed) if seed is not None else draw_episode_seed(self.np_random)
+        episode_seed = seed if seed is not None else draw_episode_seed(self.np_random)
         self.world.reset(episode_seed)
         if self.render_mode == "human":
             self.render()

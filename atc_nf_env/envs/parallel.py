@@ -15,6 +15,7 @@ from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
 from atc_nf_env.envs import EnvConfig, draw_episode_seed
 from atc_nf_env.envs.centralized import AIRCRAFT_INFO_KEYS, EncounterWorld, close_renderers, render_world
+from atc_nf_env.scenarios import check_seed
 
 AGENT_PREFIX = "aircraft_"
 _SCALAR_INFO_KEYS = tuple(key for key in AIRCRAFT_INFO_KEYS if key != "waypoint_nm")
@@ -164,8 +165,9 @@ class ATCParallelEnv(ParallelEnv):
         """Start an episode; ``seed`` is its episode seed (wind, random encounter).
         ``options`` is accepted and ignored."""
         if seed is not None:
+            seed = check_seed(seed)  # the project's one seed rule
             self._np_random, self._np_random_seed = seeding.np_random(seed)
-            episode_seed = int(seed)
+            episode_seed = seed
         else:
             episode_seed = draw_episode_seed(self.np_random)
         self.world.reset(episode_seed)

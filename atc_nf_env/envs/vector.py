@@ -32,6 +32,7 @@ from gymnasium.vector.utils import batch_space
 from atc_nf_env import kernel
 from atc_nf_env.calibration import check_calibrated
 from atc_nf_env.envs import EnvConfig, ScenarioSource, draw_episode_seed, episode_wind
+from atc_nf_env.scenarios import check_seed
 from atc_nf_env.envs.actions import waypoints_for_state
 from atc_nf_env.envs.centralized import validate_step_actions
 from atc_nf_env.envs.observations import ObservationSpec
@@ -94,8 +95,8 @@ class BatchWorlds:
         for k, b in enumerate(np.asarray(worlds, dtype=np.int64).tolist()):
             seed = None if seeds is None else seeds[k]
             if seed is not None:
-                self.rngs[b], _ = seeding.np_random(int(seed))
-                episode_seed = int(seed)
+                episode_seed = check_seed(seed, f"seed of world {b}")  # the project's one seed rule
+                self.rngs[b], _ = seeding.np_random(episode_seed)
             else:
                 if self.rngs[b] is None:
                     self.rngs[b], _ = seeding.np_random()
@@ -323,7 +324,9 @@ class EncounterVectorEnv(VectorEnv):
         """Reset every world (or those of ``options["reset_mask"]``). ``seed``: an int s
         (world b gets s + b) or a list of B seeds/None."""
         b = self.num_envs
-        if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
+            check_seed(seed)
+            check_seed(int(seed) + b - 1, f"seed + num_envs - 1 (world {b - 1}'s seed)")
             super().reset(seed=int(seed))
             seeds: list[int | None] = [int(seed) + k for k in range(b)]
         elif seed is None:
@@ -331,6 +334,8 @@ class EncounterVectorEnv(VectorEnv):
         elif isinstance(seed, (list, tuple)) and len(seed) == b:
             seeds = list(seed)
         else:
+            if not isinstance(seed, (list, tuple)):
+                check_seed(seed)  # the one rule's message (a bool, a float, a string …)
             raise ValueError(f"seed = {seed!r}: must be None, an int, or a list of {b} ints/None")
         mask = np.ones(b, dtype=bool)
         if options and "reset_mask" in options:
