@@ -138,7 +138,8 @@ def check_calibrated(config: SimConfig, workspace_radius_nm: float) -> None:
 
     The NF's unobstructed airspeed scales roughly with 1/β0², so gains calibrated for one
     workspace radius command a very different cruise elsewhere (with the default gains:
-    ~136 kt at 3000 nm, ~3700 kt at 500 nm). A flight is accepted where the median
+    ~136 kt at 3000 nm, ~3700 kt at 500 nm; inside the envelope from about 1364 to 1681
+    nm, a range a test pins). A flight is accepted where the median
     unobstructed airspeed 100 nm from the waypoint over the flight region lies within
     the airspeed envelope [366, 540] kt; otherwise a ValueError says so and how to
     recalibrate (``calibrate(workspace_radius_nm=R)``). About 3 ms, once per (gains,
@@ -150,7 +151,7 @@ def check_calibrated(config: SimConfig, workspace_radius_nm: float) -> None:
             f"workspace_radius_nm = {workspace_radius_nm!r} with k_u = {config.k_u:.6g}, k_z = {config.k_z:.6g}: "
             f"the NF would cruise at {median_kt:.0f} kt 100 nm from its waypoint, outside the envelope "
             f"[{AIRSPEED_MIN_KT:g}, {AIRSPEED_MAX_KT:g}] kt; the default gains are calibrated for a "
-            f"{WORKSPACE_RADIUS_NM:g} nm workspace (they hold from about 1380 to 1640 nm). Refused, not "
+            f"{WORKSPACE_RADIUS_NM:g} nm workspace (they hold from about 1364 to 1681 nm). Refused, not "
             "recalibrated: pass config=atc_nf_env.calibration.calibrate(workspace_radius_nm=R) to fly "
             "another workspace"
         )

@@ -79,6 +79,16 @@ def test_workspace_inside_the_calibrated_range_flies(radius: float) -> None:
     assert result.metrics.success
 
 
+@pytest.mark.parametrize("radius, accepted", [(1355.0, False), (1372.0, True), (1673.0, True), (1690.0, False)])
+def test_the_calibrated_range_is_the_one_the_refusal_states(radius: float, accepted: bool) -> None:
+    # The message (and the README) say "about 1364 to 1681 nm" with the default gains.
+    if accepted:
+        check_calibrated(SimConfig(), radius)
+    else:
+        with pytest.raises(ValueError, match=r"they hold from about 1364 to 1681 nm"):
+            check_calibrated(SimConfig(), radius)
+
+
 def test_a_recalibrated_workspace_flies_and_arrives() -> None:
     scenario = converging(4, workspace_radius_nm=3000.0)
     config = calibrate(workspace_radius_nm=3000.0)
