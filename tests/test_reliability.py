@@ -302,3 +302,20 @@ def test_scenario_dict_round_trip_has_one_home() -> None:
     scenario = make_scenario("random-4", seed=3)
     again = Scenario.from_dict(scenario.to_dict())
     assert np.allclose(again.start_xy, scenario.start_xy) and np.allclose(again.dest_heading, scenario.dest_heading)
+
+
+def test_cli_reproduce_refuses_a_figures_path_it_cannot_create_before_flying(tmp_path, capsys) -> None:
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    with deadline(60):
+        assert main(["reproduce", "--figures", str(blocker / "figs"), "--runs", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "Not a directory" in err and "Traceback" not in err
+
+
+def test_an_env_on_a_workspace_outside_the_calibration_refuses_instead_of_returning_nan() -> None:
+    from atc_nf_env.envs.centralized import EncounterEnv
+
+    env = EncounterEnv(scenario=dict(ONE_AIRCRAFT, workspace_radius_nm=1e200))
+    with pytest.raises(ValueError, match=r"workspace_radius_nm = 1e\+200"):
+        env.reset(seed=0)
