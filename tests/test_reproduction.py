@@ -143,3 +143,22 @@ def test_mpc_rows_quote_the_runs_and_the_papers_figures() -> None:
     assert rows["runs with an integration step outside [366, 540] kt"][1:] == ("0/2", "checked at every integration step")
     random_rows = reproduce.mpc_rows("random-6", summary, reproduce.run_safety(records))
     assert all(paper == "-" for _, paper, _, _ in random_rows)
+
+
+def test_reproduce_end_to_end_keeps_marked_sections_and_fills_the_readme(tmp_path: Path) -> None:
+    report, readme = tmp_path / "REPRODUCTION.md", tmp_path / "README.md"
+    kept = "<!-- begin proximity-range -->\n| range | separation |\n<!-- end proximity-range -->"
+    report.write_text(f"# old table\n\n| stale | 921/1000 |\n\n{kept}\n")
+    readme.write_text("# x\n\n<!-- begin reproduction-summary -->\nstale\n<!-- end reproduction-summary -->\n")
+    assert reproduce.main(["--runs", "1", "--nf-wind-runs", "1", "--workers", "1", "--no-progress",
+                           "--out", str(tmp_path / "out"), "--figures", str(tmp_path / "fig"),
+                           "--report", str(report), "--readme", str(readme)]) == 0
+    text = report.read_text()
+    assert "921/1000" not in text and text.count(kept) == 1
+    assert "atc-nf reproduce --runs 1 --nf-wind-runs 1" in text and build.fingerprint() in text
+    for scenario in reproduce.MPC_STUDIES:
+        assert f"| {scenario}, MPC under wind: runs where every aircraft arrives |" in text
+    summary = text.split("## In short\n\n", 1)[1].split("\n\n", 1)[0]
+    assert f"<!-- begin reproduction-summary -->\n{summary}\n<!-- end reproduction-summary -->" in readme.read_text()
+    assert {p.name for p in (tmp_path / "fig").iterdir()} >= {
+        "mpc_converging4_airspeed_bands.png", "mpc_converging6_airspeed_bands.png"}
