@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from atc_nf_env.config import PHYSICS_PRESETS, SimConfig
 from atc_nf_env.episode import MAX_EPISODE_S, run_episode, warm_up
 from atc_nf_env.evaluate import BACKENDS, Study, evaluate
 from atc_nf_env.metrics import format_run, peak_rss_mb, summarize
@@ -78,6 +79,9 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
         default=MAX_EPISODE_S / 60,
         help="time limit of an episode, min",
     )
+    parser.add_argument("--physics", choices=tuple(PHYSICS_PRESETS), default="default",
+                        help="NF settings: default, or paper-nf (proximity range 30/15 nm: the paper's "
+                        "22 nm NF-alone separation; see REPRODUCTION.md)")
     parser.add_argument("--summary-json", type=Path, help="write the summary metrics to this JSON file")
     _add_mpc_options(parser)
 
@@ -116,8 +120,9 @@ def _fly(args: argparse.Namespace) -> int:
     scenario = make_scenario(args.scenario, seed=args.seed)
     policy = make_policy(args.policy, **_policy_kwargs(args))
     record_every = 1 if (args.plots or args.animate) else 0
+    config = SimConfig.preset(args.physics)
     compile_s = warm_up(policy, scenario, seed=args.seed, wind_sigma_mps=args.wind_sigma,
-                        record_every=record_every)
+                        config=config, record_every=record_every)
     result = run_episode(
         policy,
         scenario,
@@ -125,6 +130,7 @@ def _fly(args: argparse.Namespace) -> int:
         wind_sigma_mps=args.wind_sigma,
         max_time_s=args.max_minutes * 60.0,
         record_every=record_every,
+        config=config,
     )
     print(format_run(result.metrics))
     print(f"  times above are warm; the warm-up before them (numba compiling or loading its cache, the "
@@ -168,6 +174,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         wind_sigma_mps=args.wind_sigma,
         policy_kwargs=_policy_kwargs(args),
         max_time_s=args.max_minutes * 60.0,
+        physics=args.physics,
     )
     summary = evaluate(
         study,

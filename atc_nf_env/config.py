@@ -110,6 +110,19 @@ class SimConfig:
                 f"{self.airspeed_min_kt}, {self.airspeed_max_kt}, {self.airspeed_cap_kt}"
             )
 
+    @classmethod
+    def preset(cls, name: str) -> "SimConfig":
+        """A named physics: ``"default"`` (the calibrated defaults) or ``"paper-nf"``.
+
+        ``"paper-nf"`` widens the proximity range to sensing 30 nm / barrier 15 nm, the
+        range whose NF alone keeps the paper's 22 nm between 4 converging aircraft
+        without wind (``python -m atc_nf_env.experiments.proximity_range``, table in
+        REPRODUCTION.md). Everything else is the default.
+        """
+        if not isinstance(name, str) or name not in PHYSICS_PRESETS:
+            raise ValueError(f"physics {name!r}: allowed: {', '.join(PHYSICS_PRESETS)}")
+        return cls(**PHYSICS_PRESETS[name])
+
     def replace(self, **changes: Any) -> "SimConfig":
         """A copy with some fields changed (validated)."""
         unknown = set(changes) - {f.name for f in fields(self)}
@@ -149,3 +162,10 @@ class SimConfig:
         params[nf.P_DPHI_DT_GAIN] = self.dphi_dt_gain
         params[nf.P_SUBSTEP] = self.substep_s
         return params
+
+
+#: Named physics for ``SimConfig.preset`` and ``--physics``: field overrides of the defaults.
+PHYSICS_PRESETS: dict[str, dict[str, float]] = {
+    "default": {},
+    "paper-nf": {"sensing_radius_nm": 30.0, "barrier_nm": 15.0},
+}

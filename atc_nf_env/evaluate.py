@@ -56,15 +56,18 @@ class Study:
     #: outside the envelope) and ``fallback_decisions`` (the policy's fallbacks, when it
     #: keeps ``decisions`` records with a ``fallback`` flag, as the MPC does).
     airspeed_every_s: float | None = None
+    #: Named physics (``SimConfig.preset``): "default" or "paper-nf".
+    physics: str = "default"
 
     def __post_init__(self) -> None:
+        SimConfig.preset(self.physics)  # a clear error on an unknown name
         check_wind_sigma(self.wind_sigma_mps)
         if not isinstance(self.policy_kwargs, dict):
             raise TypeError(f"policy_kwargs = {self.policy_kwargs!r}: must be a dict of the policy's settings")
         # A time limit off the integration grid is refused here, before any worker starts.
-        whole_steps("max_time_s", self.max_time_s, SimConfig().dt_s)
+        whole_steps("max_time_s", self.max_time_s, SimConfig.preset(self.physics).dt_s)
         if self.airspeed_every_s is not None:
-            whole_steps("airspeed_every_s", self.airspeed_every_s, SimConfig().dt_s)
+            whole_steps("airspeed_every_s", self.airspeed_every_s, SimConfig.preset(self.physics).dt_s)
         # Fail before any worker starts on a bad name or setting.
         make_policy(self.policy, **self.policy_kwargs)
         make_scenario(self.scenario, seed=0)
@@ -78,7 +81,7 @@ class Study:
             "policy_kwargs": self.policy_kwargs,
             "max_time_s": self.max_time_s,
             "airspeed_every_s": self.airspeed_every_s,
-            "config": SimConfig().as_dict(),
+            "config": SimConfig.preset(self.physics).as_dict(),
             "build": build.fingerprint(),
         }
 
@@ -96,11 +99,12 @@ def run_one(study: Study, seed: int) -> dict[str, Any]:
     policy = make_policy(study.policy, **study.policy_kwargs)
     scenario = make_scenario(study.scenario, seed=seed)
     record_every = 1 if study.airspeed_every_s else 0
+    config = SimConfig.preset(study.physics)
     compile_s = 0.0
     key = json.dumps(study.header(), sort_keys=True, default=str)
     if key not in _warmed_up:
         compile_s = warm_up(policy, scenario, seed=seed, wind_sigma_mps=study.wind_sigma_mps,
-                            record_every=record_every)
+                            config=config, record_every=record_every)
         _warmed_up.add(key)
     result = run_episode(
         policy,
@@ -109,6 +113,7 @@ def run_one(study: Study, seed: int) -> dict[str, Any]:
         wind_sigma_mps=study.wind_sigma_mps,
         max_time_s=study.max_time_s,
         record_every=record_every,
+        config=config,
     )
     record = result.metrics.to_dict()
     if study.airspeed_every_s:
