@@ -60,3 +60,16 @@ def test_the_study_writes_only_its_marked_section(tmp_path):
     assert "kept above" in text and "kept below" in text and "old" not in text
     assert text.count("<!-- begin proximity-range -->") == 1
     assert "| 30 / 15 |" in text
+
+
+def test_the_conclusions_quote_the_rows_they_rest_on():
+    rows = proximity_range.study(0, ranges=((12.0, 7.0), (30.0, 15.0)))
+    for row, (lo, med) in zip(rows, ((11.25, 12.5), (22.75, 26.25))):
+        row["mpc4"] = {"runs": 4, "min_separation_nm": [lo, med, 30.0], "all_home": 4, "runs_with_los": 0,
+                       "runs_with_breach": 1, "fallbacks": 2, "feasible_fraction_mean": 0.5}
+    text = "\n".join(proximity_range.conclusions(rows))
+    assert "11.2 nm at the least and 12.5 nm in the median" in text
+    assert "1 with an envelope breach in 4" in text
+    assert "its median is 26.2 nm" in text
+    assert f"keeps {rows[1]['nf4']['min_separation_nm']:.1f} nm between 4 aircraft" in text
+    assert "| 12 / 7 | " in proximity_range.report(rows, 4)
