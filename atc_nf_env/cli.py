@@ -33,8 +33,8 @@ def _positive_int(text: str) -> int:
 
 def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
     # No argparse defaults here: an option left out is not passed, and the MPC keeps its
-    # own (the paper's), which the help text quotes.
-    group = parser.add_argument_group("MCMC-MPC settings (policy mpc; defaults are the paper's)")
+    # own (the paper's, except --proposal), which the help text quotes.
+    group = parser.add_argument_group("MCMC-MPC settings (policy mpc; defaults are the paper's except --proposal)")
     group.add_argument("--extractions", type=_positive_int, help="K, proposals per decision (default: 1000)")
     group.add_argument("--horizon", type=_positive_int, help="N, periods in the horizon (default: 4)")
     group.add_argument("--wind-model", choices=("none", "sampled", "estimated"),
@@ -44,10 +44,13 @@ def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--acceptance", choices=("standard", "table-i"),
                        help="Metropolis-Hastings acceptance: standard, or as printed in Table I (default: standard)")
     group.add_argument("--cost-exponent", type=float, help="J, the chain's target is C^-J (default: 1)")
+    group.add_argument("--proposal", choices=("homing", "paper"),
+                       help="homing (starts the chain aimed home, recovers missed aircraft, searches wider "
+                            "before a fallback) or paper (Table I as printed) (default: homing)")
 
 
 def _policy_kwargs(args: argparse.Namespace) -> dict:
-    names = ("extractions", "horizon", "wind_model", "constraint_check", "acceptance", "cost_exponent")
+    names = ("extractions", "horizon", "wind_model", "constraint_check", "acceptance", "cost_exponent", "proposal")
     kwargs = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
     if kwargs and args.policy != "mpc":
         raise ValueError(f"--{next(iter(kwargs)).replace('_', '-')} applies to --policy mpc only")

@@ -4,7 +4,7 @@ Every T = 5 min the controller chooses one intermediate waypoint per aircraft:
 
 1. K joint proposals Θ_k are drawn from g: for every flying aircraft, a distance
    ~ N(100 nm, 10 nm) and an angle ~ U[−π/2, π/2] around the line from the aircraft to
-   its destination (IV-C).
+   its destination (IV-C). (The default "homing" proposal differs: see below.)
 2. All K candidates are simulated at once, in one batch of the simulator kernel (the
    oracle O of Table I is the kernel started from a copy of the state), over the
    horizon N·T. Only the first waypoint is optimized: at each later period of the
@@ -30,6 +30,77 @@ Every T = 5 min the controller chooses one intermediate waypoint per aircraft:
 5. The candidate of lowest cost among the chain's states is applied (Table I's last
    step).
 
+What the default (``proposal="homing"``) changes, and why
+-------------------------------------------------------
+Table I's sampler, proposal and cost stay available as ``proposal="paper"`` (CLI
+``--proposal paper``). Flown as printed, they leave aircraft holding short of home and
+breach the envelope at fallbacks: ``atc-nf evaluate --policy mpc --proposal paper
+--scenario converging-6 --runs 60 --workers 1`` brought every aircraft home in 51 of 60
+runs, and seed 32 flew −471 kt after 2 fallbacks (converging-4: 54 of 60). Each cause
+is met by one change:
+
+* Joint sampling. Every candidate draws every aircraft's angle independently, so when
+  several aircraft are on final approach together almost no joint candidate brings all
+  of them in, and the chain keeps the best state it visited. Table I leaves the
+  chain's initial state free; here it is Θ_0 = every aircraft aimed at its destination,
+  ``home_distance_nm`` (130 nm) out (turned at most ``recovery_angle_rad`` from its
+  heading, see below). 130 nm rather than the mean 100 nm because the NF flies faster
+  toward a farther waypoint (5-min average from 454 kt: 452 kt at 100 nm, 464 kt at
+  130 nm); measured on converging-4 seeds 100–119, mean flight 68.4 min at 100 nm,
+  67.2 at 130, 66.7 at 160 (160 nm flew more steps within 1 kt of 540). Θ_0 lies 3σ
+  out in g, so its weight π/g is large and the chain leaves it only for a candidate
+  of clearly lower cost, or when Θ_0 is infeasible (a conflict): then it runs as in
+  Table I.
+* Cost. An aircraft that arrives within the horizon counts 0 in (6) whenever it
+  arrives, so on final approach every candidate costs the same and nothing favours
+  arriving sooner. The cost adds the time each aircraft flies within the horizon
+  (until its arrival, or N·T), as distance at the nominal 454 kt:
+  L = Σ_i [D(i, t + NT) + 454 kt · τ_i]. While no aircraft arrives within the horizon
+  this adds the same constant to every candidate, so their order is (6)'s.
+* An aircraft that has missed (a gust, a conflict): all of Table I's angles lie within
+  90° of the line home, so once home is behind the aircraft every waypoint is too, the
+  NF answers with P_i > 0, i.e. a reverse airspeed u = −F, and every candidate is
+  infeasible. The proposal is therefore a mixture per aircraft: with probability
+  1 − f (``recovery_fraction`` f = 0.25) Table I's angle, with probability f an angle
+  uniform in ±``recovery_angle_rad`` (60°) around the current heading, which turns the
+  aircraft back over a few periods. The mixture's density enters the MH ratio, so the
+  chain still samples π ∝ C^−J. (The test suite flies an aircraft that starts facing
+  away from home: Table I reverses it at −450 kt, "homing" turns it home inside the
+  envelope.)
+* Fallbacks. When no candidate of a round is feasible, up to ``search_rounds`` (2) more
+  rounds of K candidates are drawn, each giving the heading-relative angles a larger
+  share (f_r = 1 − (1 − f)/2^r) and the distance a wider σ (σ·(1 + r)); the first
+  round with a feasible candidate runs the chain. Only when every round fails is the
+  fallback flown (the candidate, of any round, that stayed feasible longest), and
+  ``episode_info()`` counts it (``fallbacks``), the decisions that needed a wider
+  search (``wider_searches``, ``rescued_by_wider_search``), and the fallbacks whose
+  applied candidate was predicted to breach within the first period
+  (``fallbacks_breach_predicted``).
+* Prediction error. The predicted wind is an estimate, so a candidate predicted to
+  touch 366 kt may fly at 365. The prediction holds the airspeed
+  ``envelope_margin_kt`` (4 kt) inside the envelope; the real flight is judged against
+  [366, 540] kt.
+
+Later horizon waypoints stay shifted copies, as in IV-C: with the decision re-planned
+every period, the recovery angles turned every missed aircraft home in the runs below
+without re-aiming them.
+
+Measured (wind σ = 5.17 m/s, K = 1000, ``atc-nf evaluate --policy mpc --scenario S
+--runs R --workers 1 [--proposal paper]``, seeds 0..R−1):
+
+| scenario | proposal | runs | every aircraft home | LoS | runs with a step outside [366, 540] kt | fallbacks | mean flight (arrived) | airspeed range |
+|---|---|---:|---:|---:|---:|---:|---:|---:|
+| converging-4 | paper  | 60 | 54 | 0 | 0 | 0 | 75.5 min | 366.6 .. 520.2 kt |
+| converging-4 | homing | 60 | 60 | 0 | 0 | 0 | 67.3 min | 370.9 .. 535.2 kt |
+| converging-6 | paper  | 60 | 51 | 0 | 1 (seed 32) | 2 | 88.2 min | −471.3 .. 539.4 kt |
+| converging-6 | homing | 60 | 60 | 0 | 0 | 0 | 70.2 min | 370.2 .. 535.1 kt |
+| random-4     | homing | 30 | 30 | 0 | 0 | 0 | 64.0 min | 373.1 .. 530.3 kt |
+| random-6     | homing | 30 | 30 | 0 | 0 | 0 | 66.8 min | 370.5 .. 532.5 kt |
+
+No decision of the "homing" runs above needed a wider search round.
+
+Prediction wind and fallback
+----------------------------
 The controller never sees the true wind. Its prediction wind model is configurable:
 ``"none"`` (still air), ``"sampled"`` (each candidate predicted under its own wind drawn
 from N(0, σ²) per component) or ``"estimated"`` (a constant wind estimated from the
@@ -41,11 +112,12 @@ Fallback: when no candidate is feasible, the controller applies the candidate th
 stayed feasible longest (the most integration steps, or sampling instants, before its
 first violation; ties broken by the distance cost) and counts the decision as a
 fallback. ``episode_info()`` reports the fallbacks and the feasible fraction of every
-decision.
+decision (of the first round).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -62,16 +134,21 @@ from atc_nf_env.kernel import (
     S_DEST_X,
     S_DEST_Y,
     S_STATUS,
+    S_TIME,
     S_X,
     S_Y,
 )
 from atc_nf_env.scenarios import Scenario
 from atc_nf_env.simulation import WorldView
-from atc_nf_env.units import DECISION_PERIOD_S, KT_PER_MPS, SECONDS_PER_HOUR, WIND_SIGMA_MPS
+from atc_nf_env.units import AIRSPEED_NOMINAL_KT, DECISION_PERIOD_S, KT_PER_MPS, SECONDS_PER_HOUR, WIND_SIGMA_MPS
 
 WIND_MODELS = ("none", "sampled", "estimated")
+PROPOSALS = ("homing", "paper")
 CONSTRAINT_CHECKS = ("every-step", "sampling-instants")
 ACCEPTANCES = ("standard", "table-i")
+
+#: The default margin inside the airspeed envelope that "homing" predicts with, kt.
+HOMING_ENVELOPE_MARGIN_KT = 4.0
 
 #: Costs are floored here (nm) so that a candidate that brings everyone home (cost 0)
 #: still has a finite log-cost in the chain.
@@ -94,6 +171,21 @@ class MPCSettings:
         constraint_check: "every-step" or "sampling-instants".
         wind_model: "none", "sampled" or "estimated".
         wind_sigma_mps: σ of the "sampled" wind model, m/s.
+        proposal: "homing" (default: the chain starts from every aircraft aimed home,
+            and the proposal mixes in angles around the current heading) or "paper"
+            (Table I exactly: independent draws, the chain starting from the first).
+        recovery_fraction: "homing": probability that an aircraft's angle is drawn
+            around its current heading instead of around the line to its destination.
+        recovery_angle_rad: "homing": that angle is uniform in ±this around the heading,
+            and the aimed-home initial state turns at most this far from the heading, rad.
+        search_rounds: "homing": when no candidate is feasible, up to this many more
+            rounds of K candidates, each wider than the last, before a fallback.
+        home_distance_nm: "homing": the distance of the chain's initial state's
+            waypoints, nm.
+        envelope_margin_kt: the prediction holds the airspeed this far inside the
+            envelope (at most a quarter of its width), against the error of the
+            predicted wind, kt; None: 0 under "paper", ``HOMING_ENVELOPE_MARGIN_KT``
+            under "homing".
     """
 
     period_s: float = DECISION_PERIOD_S
@@ -107,25 +199,49 @@ class MPCSettings:
     constraint_check: str = "every-step"
     wind_model: str = "estimated"
     wind_sigma_mps: float = WIND_SIGMA_MPS
+    proposal: str = "homing"
+    recovery_fraction: float = 0.25
+    recovery_angle_rad: float = math.pi / 3
+    search_rounds: int = 2
+    home_distance_nm: float = 130.0
+    envelope_margin_kt: float | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.extractions, (int, np.integer)) or self.extractions < 1:
             raise ValueError(f"extractions (K) = {self.extractions!r}: must be an integer >= 1")
         if not isinstance(self.horizon, (int, np.integer)) or self.horizon < 1:
             raise ValueError(f"horizon (N) = {self.horizon!r}: must be an integer >= 1")
-        for name in ("period_s", "distance_mean_nm", "distance_std_nm", "angle_range_rad", "cost_exponent"):
+        for name in (
+            "period_s", "distance_mean_nm", "distance_std_nm", "angle_range_rad", "cost_exponent", "home_distance_nm"
+        ):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} = {value!r}: must be a finite number > 0")
+        if not isinstance(self.search_rounds, (int, np.integer)) or self.search_rounds < 0:
+            raise ValueError(f"search_rounds = {self.search_rounds!r}: must be an integer >= 0")
+        if not (isinstance(self.recovery_fraction, (int, float)) and 0.0 <= self.recovery_fraction <= 1.0):
+            raise ValueError(f"recovery_fraction = {self.recovery_fraction!r}: must be a number in [0, 1]")
+        if not (isinstance(self.recovery_angle_rad, (int, float)) and 0.0 < self.recovery_angle_rad < math.pi / 2):
+            raise ValueError(f"recovery_angle_rad = {self.recovery_angle_rad!r}: must be a number in (0, π/2)")
+        if self.envelope_margin_kt is not None and not (
+            isinstance(self.envelope_margin_kt, (int, float)) and 0.0 <= self.envelope_margin_kt < 50.0
+        ):
+            raise ValueError(f"envelope_margin_kt = {self.envelope_margin_kt!r}: must be None or a number in [0, 50)")
         if not (math.isfinite(self.wind_sigma_mps) and self.wind_sigma_mps >= 0):
             raise ValueError(f"wind_sigma_mps = {self.wind_sigma_mps!r}: must be a finite number >= 0")
         for name, allowed in (
             ("acceptance", ACCEPTANCES),
             ("constraint_check", CONSTRAINT_CHECKS),
             ("wind_model", WIND_MODELS),
+            ("proposal", PROPOSALS),
         ):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: allowed: {', '.join(allowed)}")
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """Angles wrapped to [−π, π), rad."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 @dataclass
@@ -138,6 +254,8 @@ class DecisionRecord:
     fallback: bool
     cost_nm: float
     chain_acceptance: float
+    rounds: int = 1
+    applied_breach_predicted: bool = False
 
 
 def metropolis_hastings_best(
@@ -215,6 +333,14 @@ class MCMCMPC:
         self._predicted_positions: np.ndarray | None = None
         self._predicted_time_s = -1.0
 
+    @property
+    def envelope_margin_kt(self) -> float:
+        """The margin inside the airspeed envelope that the prediction holds, kt."""
+        s = self.settings
+        if s.envelope_margin_kt is not None:
+            return float(s.envelope_margin_kt)
+        return 0.0 if s.proposal == "paper" else HOMING_ENVELOPE_MARGIN_KT
+
     # -- Policy interface -------------------------------------------------------------
     def reset(self, scenario: Scenario, config: SimConfig, seed: int | None = None) -> None:
         """Seed the controller and prepare its prediction model for ``scenario``."""
@@ -222,8 +348,13 @@ class MCMCMPC:
             raise ValueError(f"period_s = {self.settings.period_s}: must be >= one integration step")
         self._rng = np.random.default_rng([0 if seed is None else seed, 0x4D5043])
         stop = self.settings.constraint_check == "every-step"
-        self._params = config.to_params(scenario.workspace_radius_nm, stop_on_violation=stop)
-        self._config = config
+        # A margin never takes more than a quarter of the envelope's width.
+        margin = min(self.envelope_margin_kt, 0.25 * (config.airspeed_max_kt - config.airspeed_min_kt))
+        # The prediction's envelope: narrower by the margin; the real flight's is config's.
+        self._config = dataclasses.replace(
+            config, airspeed_min_kt=config.airspeed_min_kt + margin, airspeed_max_kt=config.airspeed_max_kt - margin
+        )
+        self._params = self._config.to_params(scenario.workspace_radius_nm, stop_on_violation=stop)
         self._workspace_radius_nm = scenario.workspace_radius_nm
         self.decisions = []
         self._wind_estimate_kt = np.zeros(2)
@@ -237,32 +368,54 @@ class MCMCMPC:
         s = self.settings
         self._update_wind_estimate(view)
         flying = view.flying
-        proposals, log_g = self._propose(view)
-        costs, survived, after_first = self._simulate(view.state, proposals)
-        feasible = np.isfinite(costs)
+        rounds = 1 + (s.search_rounds if s.proposal == "homing" else 0)
+        tried: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        first_fraction = 0.0
+        for round_index in range(rounds):
+            proposals, log_g = self._propose(view, round_index)
+            costs, survived, after_first = self._simulate(view.state, proposals)
+            feasible = np.isfinite(costs)
+            if round_index == 0:
+                first_fraction = float(feasible.mean())
+            tried.append((proposals, survived, after_first))
+            if feasible.any():
+                break
         uniforms = self._rng.random(s.extractions)
+        breach_predicted = False
         if feasible.any():
             best, accepted, _ = metropolis_hastings_best(
                 costs, log_g, uniforms, s.cost_exponent, s.acceptance
             )
             fallback = False
+            applied = proposals[best]
+            applied_after_first = after_first[best]
         else:
+            # Every round failed: fly the candidate (of any round) that stayed feasible
+            # longest, ties broken by how far its waypoints leave the aircraft from home.
             accepted = 0
+            proposals = np.concatenate([t[0] for t in tried])
+            survived = np.concatenate([t[1] for t in tried])
+            after_first = np.concatenate([t[2] for t in tried])
             distance = self._remaining_distance_of(proposals, view)
             best = int(np.lexsort((distance, -survived))[0])
             fallback = True
+            applied = proposals[best]
+            applied_after_first = after_first[best]
+            breach_predicted = bool(survived[best] < self._units_per_period())
         self.decisions.append(
             DecisionRecord(
                 time_s=view.time_s,
-                feasible_fraction=float(feasible.mean()),
+                feasible_fraction=first_fraction,
                 fallback=fallback,
-                cost_nm=float(costs[best]) if feasible.any() else math.inf,
+                cost_nm=float(costs[best]) if not fallback else math.inf,
                 chain_acceptance=accepted / max(s.extractions - 1, 1),
+                rounds=len(tried),
+                applied_breach_predicted=breach_predicted,
             )
         )
         waypoints = view.waypoints.copy()
-        waypoints[flying] = proposals[best, flying]
-        self._predicted_positions = after_first[best].copy()
+        waypoints[flying] = applied[flying]
+        self._predicted_positions = applied_after_first.copy()
         self._predicted_time_s = view.time_s + s.period_s
         return waypoints
 
@@ -272,6 +425,9 @@ class MCMCMPC:
         return {
             "decisions": len(self.decisions),
             "fallbacks": int(sum(d.fallback for d in self.decisions)),
+            "fallbacks_breach_predicted": int(sum(d.applied_breach_predicted for d in self.decisions)),
+            "wider_searches": int(sum(d.rounds > 1 for d in self.decisions)),
+            "rescued_by_wider_search": int(sum(d.rounds > 1 and not d.fallback for d in self.decisions)),
             "feasible_fraction": {
                 "min": float(min(fractions)) if fractions else None,
                 "mean": float(np.mean(fractions)) if fractions else None,
@@ -283,15 +439,31 @@ class MCMCMPC:
         }
 
     # -- internals ----------------------------------------------------------------------
-    def _propose(self, view: WorldView) -> tuple[np.ndarray, np.ndarray]:
-        """K joint proposals (K, N, 2) nm and their log-densities log g (K,) up to a constant."""
+    def _units_per_period(self) -> int:
+        """What ``survived`` counts in one period: integration steps, or one sampling instant."""
+        if self.settings.constraint_check == "every-step":
+            return kernel.steps_for(self.settings.period_s, self._config.dt_s)
+        return 1
+
+    def _propose(self, view: WorldView, round_index: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """K joint proposals (K, N, 2) nm and their log-densities log g (K,) up to a constant.
+
+        ``round_index`` > 0 (proposal "homing" only): a wider search after a round in
+        which no candidate was feasible.
+        """
         s = self.settings
         n = view.state.shape[0]
-        distance = self._rng.normal(s.distance_mean_nm, s.distance_std_nm, (s.extractions, n))
-        angle = self._rng.uniform(-s.angle_range_rad, s.angle_range_rad, (s.extractions, n))
         to_dest = view.destinations - view.positions
         bearing = np.arctan2(to_dest[:, 1], to_dest[:, 0])
-        direction = bearing[None, :] + angle
+        flying = view.flying
+        if s.proposal == "paper":
+            distance = self._rng.normal(s.distance_mean_nm, s.distance_std_nm, (s.extractions, n))
+            angle = self._rng.uniform(-s.angle_range_rad, s.angle_range_rad, (s.extractions, n))
+            direction = bearing[None, :] + angle
+            z = (distance - s.distance_mean_nm) / s.distance_std_nm
+            log_g = -0.5 * (z[:, flying] ** 2).sum(axis=1)
+        else:
+            direction, distance, log_g = self._homing_draws(view, bearing, round_index)
         proposals = view.positions[None] + distance[..., None] * np.stack(
             [np.cos(direction), np.sin(direction)], axis=-1
         )
@@ -300,10 +472,51 @@ class MCMCMPC:
         radius = np.hypot(proposals[..., 0], proposals[..., 1])
         scale = np.minimum(1.0, limit / np.maximum(radius, 1e-12))
         proposals *= scale[..., None]
-        flying = view.flying
-        z = (distance - s.distance_mean_nm) / s.distance_std_nm
-        log_g = -0.5 * (z[:, flying] ** 2).sum(axis=1)
         return proposals, log_g
+
+    def _homing_draws(
+        self, view: WorldView, bearing: np.ndarray, round_index: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Directions (K, N) rad, distances (K, N) nm and log g (K,) of the "homing" proposal.
+
+        Per aircraft, a mixture: with probability 1 − f the paper's angle (uniform in
+        ±angle_range around the line to the destination), with probability f an angle
+        uniform in ±recovery_angle around the current heading; the distance is normal
+        around the paper's mean. Candidate 0, the chain's initial state, is every
+        aircraft aimed home at the mean distance (turned at most recovery_angle from its
+        heading). Each wider round halves the paper's share 1 − f and adds the paper's σ to
+        the distance's.
+        """
+        s = self.settings
+        k, n = s.extractions, view.state.shape[0]
+        heading = view.headings
+        # Round r leaves the paper's angles a share (1 − f) / 2^r.
+        f = 1.0 - (1.0 - s.recovery_fraction) / 2**round_index
+        sigma = s.distance_std_nm * (1 + round_index)
+        distance = self._rng.normal(s.distance_mean_nm, sigma, (k, n))
+        around_heading = self._rng.random((k, n)) < f
+        angle = self._rng.uniform(-1.0, 1.0, (k, n))
+        direction = np.where(
+            around_heading,
+            heading[None, :] + s.recovery_angle_rad * angle,
+            bearing[None, :] + s.angle_range_rad * angle,
+        )
+        # The initial state: aimed home, or as near home as a turn of recovery_angle allows
+        # (a waypoint far behind the heading would command a reverse airspeed).
+        home = heading + np.clip(_wrap(bearing - heading), -s.recovery_angle_rad, s.recovery_angle_rad)
+        if f == 0.0:
+            home = bearing  # outside the paper's support otherwise
+        direction[0] = home
+        distance[0] = s.home_distance_nm
+        z = (distance - s.distance_mean_nm) / sigma
+        from_bearing = np.abs(_wrap(direction - bearing[None, :])) <= s.angle_range_rad + 1e-12
+        from_heading = np.abs(_wrap(direction - heading[None, :])) <= s.recovery_angle_rad + 1e-12
+        density = (1.0 - f) * from_bearing / (2.0 * s.angle_range_rad) + f * from_heading / (
+            2.0 * s.recovery_angle_rad
+        )
+        log_angle = np.log(np.maximum(density, 1e-300))
+        log_g = (-0.5 * z**2 + log_angle)[:, view.flying].sum(axis=1)
+        return direction, distance, log_g
 
     def _prediction_wind(self) -> np.ndarray:
         s = self.settings
@@ -355,7 +568,10 @@ class MCMCMPC:
             if after_first is None:
                 after_first = states[:, :, S_X : S_Y + 1].copy()
             waypoints = waypoints + (states[:, :, S_X : S_Y + 1] - before)
-        costs = np.where(feasible, self._remaining_distance(states), np.inf)
+        cost = self._remaining_distance(states)
+        if s.proposal == "homing":
+            cost = cost + self._time_to_arrival_nm(base_state, states)
+        costs = np.where(feasible, cost, np.inf)
         return costs, survived, after_first
 
     @staticmethod
@@ -365,6 +581,14 @@ class MCMCMPC:
         distance = np.hypot(delta[..., 0], delta[..., 1])
         present = (states[:, :, S_STATUS] != ARRIVED) & (states[:, :, S_STATUS] != ABSENT)
         return np.where(present, distance, 0.0).sum(axis=1)
+
+    @staticmethod
+    def _time_to_arrival_nm(base_state: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """Σ_i v_ref·τ_i: the time τ_i each aircraft flew in the horizon (until its arrival,
+        or the whole horizon), as distance at the nominal airspeed, nm, per world."""
+        flown_s = states[:, :, S_TIME] - base_state[None, :, S_TIME]
+        flying0 = base_state[:, S_STATUS] == FLYING
+        return np.where(flying0[None], flown_s, 0.0).sum(axis=1) * (AIRSPEED_NOMINAL_KT / SECONDS_PER_HOUR)
 
     @staticmethod
     def _remaining_distance_of(proposals: np.ndarray, view: WorldView) -> np.ndarray:

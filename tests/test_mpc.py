@@ -10,7 +10,7 @@ import pytest
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import run_episode
 from atc_nf_env.kernel import R_AIRSPEED, R_FLEW
-from atc_nf_env.scenarios import converging
+from atc_nf_env.scenarios import Scenario, converging
 from atc_nf_env.simulation import Simulation
 from baselines import MCMCMPC, MPCSettings
 from baselines.mcmc_mpc import metropolis_hastings_best
@@ -76,6 +76,47 @@ def test_mpc_flies_the_four_aircraft_encounter_under_wind_safely(seed):
     assert policy.episode_info()["fallbacks"] == 0
 
 
+@pytest.mark.parametrize(
+    "seed, what_table_i_did",
+    [(32, "flew -471 kt after 2 fallbacks"), (1, "left an aircraft holding short of home")],
+)
+def test_default_mpc_brings_six_aircraft_home_where_table_i_did_not(seed, what_table_i_did):
+    """converging-6 seeds on which ``proposal="paper"`` (K = 1000) failed: see the
+    module docstring of baselines.mcmc_mpc."""
+    policy = MCMCMPC()
+    m = run_episode(policy, converging(6), seed=seed, wind_sigma_mps=5.17).metrics
+    assert all(m.arrived), (what_table_i_did, m.flight_time_min)
+    assert m.los_count == 0
+    assert m.envelope_violation_fraction == 0.0
+    assert 366.0 <= m.airspeed_min_kt <= m.airspeed_max_kt <= 540.0, what_table_i_did
+    assert policy.episode_info()["fallbacks"] == 0
+
+
+def test_homing_cost_prefers_the_earlier_arrival_and_keeps_the_paper_order_otherwise():
+    from atc_nf_env.kernel import ARRIVED, FLYING, S_STATUS, S_TIME, S_X
+
+    scenario = converging(2)
+    policy = MCMCMPC(extractions=4)
+    policy.reset(scenario, SimConfig(), seed=0)
+    base = Simulation(scenario).view().state.copy()
+    base[:, S_TIME] = 600.0
+    ends = np.repeat(base[None], 4, axis=0)
+    ends[:, :, S_TIME] = 600.0 + 1200.0  # the whole horizon flown...
+    ends[0, 0, S_STATUS] = ends[1, 0, S_STATUS] = ARRIVED  # ...except aircraft 0 of worlds 0, 1
+    ends[0, 0, S_TIME], ends[1, 0, S_TIME] = 600.0 + 300.0, 600.0 + 900.0
+    ends[2, :, S_X] += 10.0  # worlds 2, 3: nobody arrives; they differ in where they end
+    assert (ends[:, 1, S_STATUS] == FLYING).all()
+    paper = policy._remaining_distance(ends)
+    homing = paper + policy._time_to_arrival_nm(base, ends)
+    assert paper[0] == paper[1]  # (6) cannot tell the two arrivals apart
+    assert homing[0] < homing[1]
+    # 10 min sooner, at the nominal 454 kt
+    assert math.isclose(homing[1] - homing[0], 454.0 * 600.0 / 3600.0)
+    # no arrival: the same constant added to both, so their order is (6)'s
+    assert math.isclose(homing[2] - paper[2], homing[3] - paper[3])
+    assert (paper[2] < paper[3]) == (homing[2] < homing[3])
+
+
 def test_mpc_is_reproducible():
     a = run_episode(MCMCMPC(extractions=100), converging(3), seed=5, wind_sigma_mps=5.17, record_every=5)
     b = run_episode(MCMCMPC(extractions=100), converging(3), seed=5, wind_sigma_mps=5.17, record_every=5)
@@ -86,7 +127,7 @@ def test_mpc_is_reproducible():
 def test_candidates_follow_the_proposal():
     scenario = converging(4)
     sim = Simulation(scenario)
-    policy = MCMCMPC(extractions=4000)
+    policy = MCMCMPC(extractions=4000, proposal="paper")
     policy.reset(scenario, SimConfig(), seed=0)
     view = sim.view()
     proposals, _ = policy._propose(view)
@@ -100,14 +141,83 @@ def test_candidates_follow_the_proposal():
     assert abs(relative.mean()) < 0.05
 
 
-def test_no_feasible_candidate_takes_the_counted_fallback():
+@pytest.mark.parametrize("proposal, rounds", [("paper", 1), ("homing", 3)])
+def test_no_feasible_candidate_takes_the_counted_fallback(proposal, rounds):
     # A 1-knot-wide envelope no candidate can hold.
     config = SimConfig(airspeed_min_kt=460.0, airspeed_max_kt=461.0)
-    policy = MCMCMPC(extractions=50)
+    policy = MCMCMPC(extractions=50, proposal=proposal)
     result = run_episode(policy, converging(3), config=config, seed=0, max_time_s=900.0)
     info = policy.episode_info()
     assert info["fallbacks"] == info["decisions"] == result.metrics.decisions == 3
     assert info["feasible_fraction"]["mean"] == 0.0
+    # "homing" searched two wider rounds before each fallback, in vain; the paper none.
+    assert info["wider_searches"] == (3 if rounds > 1 else 0)
+    assert info["rescued_by_wider_search"] == 0
+    assert all(d.rounds == rounds for d in policy.decisions)
+    assert info["fallbacks_breach_predicted"] == sum(d.applied_breach_predicted for d in policy.decisions)
+
+
+def _turned_away() -> Scenario:
+    """Aircraft 0 has missed: 40 nm past its destination, flying away from it."""
+    return Scenario(
+        name="turned-away",
+        start_xy=[[40.0, 0.0], [0.0, -150.0]],
+        start_heading=[0.0, math.pi / 2],
+        dest_xy=[[0.0, 0.0], [0.0, 150.0]],
+        dest_heading=[math.pi, math.pi / 2],
+    )
+
+
+def test_homing_turns_an_aircraft_that_missed_back_without_leaving_the_envelope():
+    """Table I's angles, all within 90 deg of the line home, put the waypoint behind an
+    aircraft that flies away from home: the NF answers with a reverse airspeed. The
+    recovery angles around the heading turn it back inside the envelope."""
+    homing = MCMCMPC(extractions=300)
+    m = run_episode(homing, _turned_away(), seed=0, wind_sigma_mps=5.17).metrics
+    assert all(m.arrived)
+    assert m.envelope_violation_fraction == 0.0 and 366.0 <= m.airspeed_min_kt <= m.airspeed_max_kt <= 540.0
+    assert homing.episode_info()["fallbacks"] == 0
+    assert m.flight_time_min[0] > 10.0  # it turned (8 nm at 450 kt is ~6 min straight back)
+    paper = MCMCMPC(extractions=300, proposal="paper")
+    m_paper = run_episode(paper, _turned_away(), seed=0, wind_sigma_mps=5.17).metrics
+    assert m_paper.airspeed_min_kt < 0.0  # what the test above guards against
+    assert paper.episode_info()["fallbacks"] >= 1
+
+
+def test_homing_chain_starts_aimed_home_and_its_density_matches_its_draws():
+    scenario = _turned_away()
+    sim = Simulation(scenario)
+    policy = MCMCMPC(extractions=20_000)
+    policy.reset(scenario, SimConfig(), seed=0)
+    view = sim.view()
+    s = policy.settings
+    proposals, log_g = policy._propose(view)
+    offset = proposals - view.positions[None]
+    direction = np.arctan2(offset[..., 1], offset[..., 0])
+    to_dest = view.destinations - view.positions
+    bearing = np.arctan2(to_dest[:, 1], to_dest[:, 0])
+    # Candidate 0: aircraft 1 aimed straight home, aircraft 0 (home is behind it) turned
+    # by the recovery angle toward home, both at home_distance_nm.
+    np.testing.assert_allclose(np.hypot(offset[0, :, 0], offset[0, :, 1]), s.home_distance_nm)
+    assert abs(direction[0, 1] - bearing[1]) < 1e-9
+    assert abs(abs(direction[0, 0] - view.headings[0]) - s.recovery_angle_rad) < 1e-9
+    # The angle density used in the chain against the draws' histogram (aircraft 0, whose
+    # two mixture components do not overlap): (1 - f)/π around home, f/(2α) around the heading.
+    relative = (direction[1:, 0] - view.headings[0] + math.pi) % (2 * math.pi) - math.pi
+    near_heading = np.abs(relative) <= s.recovery_angle_rad
+    assert abs(near_heading.mean() - s.recovery_fraction) < 0.015
+    # log g differs between two candidates by the angle and distance terms only.
+    z = (np.hypot(offset[..., 0], offset[..., 1]) - s.distance_mean_nm) / s.distance_std_nm
+    angle_term = log_g + 0.5 * (z**2).sum(axis=1)
+    expected_0 = np.where(near_heading, math.log(s.recovery_fraction / (2 * s.recovery_angle_rad)),
+                          math.log((1 - s.recovery_fraction) / math.pi))
+    expected_1 = angle_term[1:] - expected_0
+    # Aircraft 1 flies straight home: both components cover its angle or only the paper's.
+    both = math.log((1 - s.recovery_fraction) / math.pi + s.recovery_fraction / (2 * s.recovery_angle_rad))
+    only_paper = math.log((1 - s.recovery_fraction) / math.pi)
+    assert np.all(np.isclose(expected_1, both) | np.isclose(expected_1, only_paper))
+    relative_1 = (direction[1:, 1] - view.headings[1] + math.pi) % (2 * math.pi) - math.pi
+    np.testing.assert_array_equal(np.isclose(expected_1, both), np.abs(relative_1) <= s.recovery_angle_rad)
 
 
 @pytest.mark.parametrize(
@@ -118,6 +228,10 @@ def test_no_feasible_candidate_takes_the_counted_fallback():
         ({"wind_sigma_mps": -1.0}, "wind_sigma_mps"),
         ({"wind_model": "oracle"}, "wind_model"),
         ({"acceptance": "greedy"}, "acceptance"),
+        ({"proposal": "uniform"}, "proposal"),
+        ({"recovery_fraction": 1.5}, "recovery_fraction"),
+        ({"recovery_angle_rad": 2.0}, "recovery_angle_rad"),
+        ({"search_rounds": -1}, "search_rounds"),
         ({"not_a_setting": 1}, "not_a_setting"),
     ],
 )
@@ -130,3 +244,4 @@ def test_settings_default_to_the_paper():
     s = MPCSettings()
     assert (s.period_s, s.horizon, s.extractions) == (300.0, 4, 1000)
     assert (s.distance_mean_nm, s.distance_std_nm, s.angle_range_rad) == (100.0, 10.0, math.pi / 2)
+    assert s.proposal == "homing"
