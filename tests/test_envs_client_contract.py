@@ -202,3 +202,18 @@ def test_compiled_period_outcome_equals_the_numpy_one_bit_for_bit() -> None:
                   "distance_to_go_nm"):
         assert np.array_equal(getattr(got, field), getattr(want, field)), field
         assert getattr(got, field).dtype == getattr(want, field).dtype, field
+
+
+def test_fast_paths_still_refuse_complex_and_non_numeric_actions() -> None:
+    par = atc_nf_env.parallel_env(scenario="converging-3")
+    par.reset(seed=0)
+    for bad in (np.array([0.1 + 1j, 0.2]), ["0.1", "x"], object()):
+        actions = {agent: np.zeros(2) for agent in par.agents} | {"aircraft_1": bad}
+        with pytest.raises(ValueError, match="action for aircraft_1"):
+            par.step(actions)
+    cen = EncounterEnv(scenario="converging-3")
+    cen.reset(seed=0)
+    with pytest.raises(ValueError, match="action"):
+        cen.step(np.zeros((3, 2)) + 0.5j)
+    # float32, float64, int and bool actions are numbers and go through.
+    par.step({agent: value for agent, value in zip(par.agents, ([1, 0], np.float32([0.5, 0.5]), [True, False]))})

@@ -10,11 +10,15 @@ import numpy as np
 from gymnasium import spaces
 
 from atc_nf_env.envs import EnvConfig, ScenarioSource, draw_episode_seed, episode_wind
+import math
+
+from numba import njit
+
 from atc_nf_env.scenarios import check_seed
-from atc_nf_env.envs.actions import waypoints_for_state
-from atc_nf_env.envs.observations import ObservationSpec
 from atc_nf_env import kernel
-from atc_nf_env.envs.rewards import StepOutcome, period_outcome, reward_weight_vector
+from atc_nf_env.envs.actions import WORKSPACE_MARGIN_NM, _waypoints_from_state
+from atc_nf_env.envs.observations import ObservationSpec, _observe
+from atc_nf_env.envs.rewards import reward_weight_vector
 from atc_nf_env.kernel import (
     ARRIVED,
     FLYING,
@@ -29,7 +33,7 @@ from atc_nf_env.kernel import (
     S_X,
     S_Y,
     KernelScratch,
-    Trace,
+
 )
 from atc_nf_env.simulation import Simulation
 from atc_nf_env.units import DECISION_PERIOD_S
@@ -54,6 +58,92 @@ AIRCRAFT_INFO_KEYS: tuple[str, ...] = (
     "aircraft_reward",
     "waypoint_nm",
 )
+#: The scalar per-aircraft infos as one record per aircraft: ``tolist()`` gives each
+#: aircraft's values as Python floats, ints and bools in one call.
+INFO_RECORD = np.dtype(
+    [
+        ("airspeed_kt", "f8"),
+        ("airspeed_min_kt", "f8"),
+        ("airspeed_max_kt", "f8"),
+        ("distance_to_go_nm", "f8"),
+        ("nearest_nm", "f8"),
+        ("los_count", "i8"),
+        ("envelope_violation", "?"),
+        ("envelope_violation_fraction", "f8"),
+        ("action_clipped", "?"),
+        ("arrived", "?"),
+        ("left_workspace", "?"),
+        ("aircraft_reward", "f8"),
+    ]
+)
+assert INFO_RECORD.names == AIRCRAFT_INFO_KEYS[:-1]
+
+
+@njit(cache=True, error_model="numpy")
+def _world_after_period(
+    state: np.ndarray,
+    actions: np.ndarray,
+    flying_before: np.ndarray,
+    distance_before: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    weights: np.ndarray,
+    obs_args: np.ndarray,
+    wind: np.ndarray,
+    n_neighbours: int,
+    expose_wind: bool,
+    scales: np.ndarray,
+    obs: np.ndarray,
+    nearest: np.ndarray,
+    info: np.ndarray,
+    distance_after: np.ndarray,
+    flying_after: np.ndarray,
+) -> None:
+    """Everything a single-world env reports after ``kernel.advance`` flew one period, in
+    one call: the rewards and per-aircraft infos (the same arithmetic as
+    ``rewards.step_outcome``, bit for bit), the observations and nearest distances.
+    state (1, n, N_STATE); per-aircraft arrays (n,); obs (1, n_slots, D); nearest (1, n_slots)."""
+    _observe(state, obs_args, wind, n_neighbours, expose_wind, scales, obs, nearest)
+    n = flying_before.shape[0]
+    for i in range(n):
+        x = state[0, i, S_X]
+        y = state[0, i, S_Y]
+        after = math.hypot(state[0, i, S_DEST_X] - x, state[0, i, S_DEST_Y] - y)
+        distance_after[i] = after
+        flew = flying_before[i]
+        status = state[0, i, S_STATUS]
+        flying_after[i] = status == FLYING
+        arrived = status == ARRIVED
+        left = status == LEFT
+        share = violation_steps[i] / max(steps_flown[i], 1)
+        count = 0
+        for j in range(n):
+            count += los_pairs[i, j]
+        gain = (distance_before[i] - after) * (1.0 if flew else 0.0)
+        record = info[i]
+        record["airspeed_kt"] = state[0, i, S_AIRSPEED]
+        record["airspeed_min_kt"] = min_airspeed[i]
+        record["airspeed_max_kt"] = max_airspeed[i]
+        record["distance_to_go_nm"] = after
+        record["nearest_nm"] = nearest[0, i]
+        record["los_count"] = count
+        record["envelope_violation"] = violation_steps[i] > 0
+        record["envelope_violation_fraction"] = share
+        record["action_clipped"] = flew and (
+            actions[i, 0] < -1.0 or actions[i, 0] > 1.0 or actions[i, 1] < -1.0 or actions[i, 1] > 1.0
+        )
+        record["arrived"] = arrived
+        record["left_workspace"] = left
+        record["aircraft_reward"] = (
+            weights[0] * gain
+            - weights[1] * share
+            - weights[2] * count
+            + weights[3] * (1.0 if flew and arrived else 0.0)
+            - weights[4] * (1.0 if flew and left else 0.0)
+        )
 
 
 class EncounterWorld:
@@ -69,6 +159,7 @@ class EncounterWorld:
     def __init__(self, cfg: EnvConfig, where: str) -> None:
         self.cfg = cfg
         self.source = ScenarioSource(cfg.scenario)
+        self.n_aircraft: int = self.source.n_aircraft
         self.n_slots = self.source.slots(cfg.max_aircraft, where)
         self.obs_spec = ObservationSpec.for_config(cfg.config, cfg.n_neighbours, cfg.expose_wind)
         self.record_every = RENDER_RECORD_EVERY if cfg.render_mode is not None else 0
@@ -80,14 +171,23 @@ class EncounterWorld:
         self._reward_weights = reward_weight_vector(cfg.reward_weights)
         self._scratch = KernelScratch()
         self._dt_s = float(cfg.config.dt_s)
-        self.last_waypoints = np.zeros((self.n_aircraft, 2))
-        self._last: tuple[StepOutcome, Trace, np.ndarray] | None = None
+        mapping = cfg.action_mapping
+        self._mapping = (
+            float(mapping.distance_nm),
+            float(mapping.distance_span_nm),
+            math.radians(mapping.angle_span_deg),
+            self.source.workspace_radius_nm - cfg.config.aircraft_radius_nm - WORKSPACE_MARGIN_NM,
+        )
+        self._obs_dim = self.obs_spec.dim
+        self._scales = self.obs_spec._scales
+        n = self.n_aircraft
+        self.last_waypoints = np.zeros((n, 2))
+        self.min_separation_nm = np.inf
+        self.rewards = np.zeros(n)
+        self.info = np.zeros(n, dtype=INFO_RECORD)
+        self._time_fraction = np.zeros(1)  # the observations' argument, refilled every step
 
     # ----------------------------------------------------------------- episode
-
-    @property
-    def n_aircraft(self) -> int:
-        return self.source.n_aircraft
 
     def reset(self, episode_seed: int) -> None:
         scenario = self.source.scenario(episode_seed)
@@ -98,28 +198,31 @@ class EncounterWorld:
         self.decisions = 0
         state = self.sim.state
         self.last_waypoints = state[0, :, [S_WP_X, S_WP_Y]].T.copy()
-        self._flying = state[:, :, S_STATUS] == FLYING
-        self._distance = np.hypot(state[:, :, S_DEST_X] - state[:, :, S_X], state[:, :, S_DEST_Y] - state[:, :, S_Y])
-        self._last = None
-        self._refresh()
-
-    def _refresh(self) -> None:
-        """Observe the current state once (observations and nearest distances)."""
-        assert self.sim is not None
-        obs, nearest = self.obs_spec.observe_with_nearest(
-            self.sim.state, np.array([self.time_fraction]), self._wind, self.n_slots
-        )
+        self.flying = state[0, :, S_STATUS] == FLYING
+        self._distance = np.hypot(state[0, :, S_DEST_X] - state[0, :, S_X], state[0, :, S_DEST_Y] - state[0, :, S_Y])
+        obs, nearest = self.obs_spec.observe_with_nearest(state, np.array([self.time_fraction]), self._wind, self.n_slots)
         self._obs = obs[0]
         self._nearest = nearest[0, : self.n_aircraft]
+        # Neutral infos: nothing clipped, violated or lost, reward 0; the airspeed range and
+        # the separation those of the initial state.
+        n = self.n_aircraft
+        info = np.zeros(n, dtype=INFO_RECORD)
+        airspeed = state[0, :, S_AIRSPEED]
+        info["airspeed_kt"] = airspeed
+        info["airspeed_min_kt"] = airspeed
+        info["airspeed_max_kt"] = airspeed
+        info["distance_to_go_nm"] = self._distance
+        info["nearest_nm"] = self._nearest
+        info["arrived"] = state[0, :, S_STATUS] == ARRIVED
+        info["left_workspace"] = state[0, :, S_STATUS] == LEFT
+        self.info = info
+        self.rewards = np.zeros(n)
+        nearest_flying = self._nearest[self.flying]
+        self.min_separation_nm = float(nearest_flying.min()) if nearest_flying.size else np.inf
 
     @property
     def started(self) -> bool:
         return self.sim is not None
-
-    @property
-    def flying(self) -> np.ndarray:
-        """(n,) bool."""
-        return self._flying[0]
 
     @property
     def time_fraction(self) -> float:
@@ -134,7 +237,7 @@ class EncounterWorld:
     @property
     def done(self) -> bool:
         """Every aircraft has arrived or left."""
-        return not self._flying.any()
+        return not self.flying.any()
 
     @property
     def over(self) -> bool:
@@ -151,18 +254,18 @@ class EncounterWorld:
             self.sim.state, np.array([self.time_fraction]), self._wind, self.n_slots
         )[0]
 
-    def step(self, actions: np.ndarray, clipped: np.ndarray) -> tuple[StepOutcome, Trace]:
-        """Fly one decision period with finite actions (n, 2) (clipped to [-1, 1] here;
-        rows of aircraft not flying are ignored); ``clipped`` (n,) says which were
-        outside the box (for the infos)."""
+    def step(self, actions: np.ndarray) -> None:
+        """Fly one decision period with finite actions (n, 2) float64 (clipped to [-1, 1]
+        here; rows of aircraft not flying are ignored). Afterwards ``rewards`` (n,),
+        ``info`` (n,) ``INFO_RECORD``, ``min_separation_nm``, ``last_waypoints``,
+        ``flying`` and the observations describe the step (fresh arrays every step)."""
         sim = self.sim
         assert sim is not None
         state = sim.state
-        flying_before = self._flying
-        waypoints = waypoints_for_state(
-            actions[None], state, self.cfg.action_mapping,
-            sim.scenario.workspace_radius_nm, self.cfg.config.aircraft_radius_nm,
-        )
+        n = self.n_aircraft
+        waypoints = np.empty((1, n, 2))
+        distance_nm, span_nm, angle_span_rad, limit_nm = self._mapping
+        _waypoints_from_state(actions[None], state, distance_nm, span_nm, angle_span_rad, limit_nm, waypoints)
         self.last_waypoints = waypoints[0]
         if self.record_every:
             trace = sim.advance(waypoints[0], DECISION_PERIOD_S)
@@ -170,12 +273,26 @@ class EncounterWorld:
             trace = kernel.advance(state, waypoints, self._wind, DECISION_PERIOD_S, sim.params, scratch=self._scratch)
             sim.time_s += float(trace.steps_done[0]) * self._dt_s
         self.decisions += 1
-        outcome = period_outcome(state, flying_before, self._distance, trace, self._reward_weights)
-        self._flying = state[:, :, S_STATUS] == FLYING
-        self._distance = outcome.distance_to_go_nm
-        self._last = (outcome, trace, clipped)
-        self._refresh()
-        return outcome, trace
+        self._time_fraction[0] = min(1.0, sim.time_s / self._limit_s)
+        obs = np.empty((1, self.n_slots, self._obs_dim), dtype=np.float32)
+        nearest = np.empty((1, self.n_slots))
+        info = np.empty(n, dtype=INFO_RECORD)
+        distance = np.empty(n)
+        flying = np.empty(n, dtype=np.bool_)
+        _world_after_period(
+            state, actions, self.flying, self._distance,
+            trace.min_airspeed_kt[0], trace.max_airspeed_kt[0], trace.violation_steps[0], trace.steps_flown[0],
+            trace.los_pairs[0], self._reward_weights, self._time_fraction, self._wind,
+            self.cfg.n_neighbours, self.cfg.expose_wind, self._scales, obs, nearest, info, distance, flying,
+        )
+        self._obs = obs[0]
+        self._nearest = nearest[0, :n]
+        self.info = info
+        self.rewards = info["aircraft_reward"]
+        self._distance = distance
+        self.flying = flying
+        min_sep = float(trace.min_separation_nm[0])
+        self.min_separation_nm = np.inf if min_sep >= NO_PAIR_SEPARATION_NM else min_sep
 
     # ----------------------------------------------------------------- infos
 
@@ -184,49 +301,9 @@ class EncounterWorld:
         and the smallest separation, nm, describing the last step; after a reset the same
         keys, shapes and dtypes with neutral values (nothing clipped, violated or lost; the
         airspeed range and the separation those of the initial state; reward 0)."""
-        assert self.sim is not None
-        state = self.sim.state[0]
-        n = self.n_aircraft
-        status = state[:, S_STATUS]
-        airspeed = state[:, S_AIRSPEED].copy()
-        if self._last is None:
-            flying = self._flying[0]
-            nearest = self._nearest[flying]
-            min_separation = float(nearest.min()) if nearest.size else np.inf
-            arrays = {
-                "airspeed_kt": airspeed,
-                "airspeed_min_kt": airspeed.copy(),
-                "airspeed_max_kt": airspeed.copy(),
-                "distance_to_go_nm": self._distance[0].copy(),
-                "nearest_nm": self._nearest.copy(),
-                "los_count": np.zeros(n, dtype=np.int64),
-                "envelope_violation": np.zeros(n, dtype=bool),
-                "envelope_violation_fraction": np.zeros(n),
-                "action_clipped": np.zeros(n, dtype=bool),
-                "arrived": status == ARRIVED,
-                "left_workspace": status == LEFT,
-                "aircraft_reward": np.zeros(n),
-                "waypoint_nm": self.last_waypoints.copy(),
-            }
-            return arrays, min_separation
-        outcome, trace, clipped = self._last
-        min_sep = float(trace.min_separation_nm[0])
-        arrays = {
-            "airspeed_kt": airspeed,
-            "airspeed_min_kt": trace.min_airspeed_kt[0, :n],
-            "airspeed_max_kt": trace.max_airspeed_kt[0, :n],
-            "distance_to_go_nm": outcome.distance_to_go_nm[0].copy(),
-            "nearest_nm": self._nearest,
-            "los_count": outcome.los_count[0],
-            "envelope_violation": trace.violation_steps[0, :n] > 0,
-            "envelope_violation_fraction": outcome.violation_fraction[0],
-            "action_clipped": clipped & outcome.flew[0],
-            "arrived": status == ARRIVED,
-            "left_workspace": status == LEFT,
-            "aircraft_reward": outcome.rewards[0],
-            "waypoint_nm": self.last_waypoints,
-        }
-        return arrays, (np.inf if min_sep >= NO_PAIR_SEPARATION_NM else min_sep)
+        arrays = {key: self.info[key] for key in INFO_RECORD.names}
+        arrays["waypoint_nm"] = self.last_waypoints
+        return arrays, self.min_separation_nm
 
 
 def validate_step_actions(action: Any, shape: tuple[int, ...], where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -367,14 +444,23 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
                 "atc_nf_env/Encounter-v0: the episode is over (every aircraft has arrived or left, or the "
                 "time limit passed); call reset() before step()"
             )
-        clipped_actions, clipped = validate_step_actions(action, (self.n_slots, 2), "atc_nf_env/Encounter-v0")
+        try:
+            array = np.asarray(action)
+            ok = array.dtype.kind in "biuf" and array.shape == (self.n_slots, 2)
+            if ok:
+                array = array.astype(np.float64, copy=False)
+                ok = bool(np.isfinite(array).all())
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:  # say what is wrong with it
+            validate_step_actions(action, (self.n_slots, 2), "atc_nf_env/Encounter-v0")
         n = world.n_aircraft
-        outcome, _ = world.step(clipped_actions[:n], clipped[:n])
+        world.step(np.ascontiguousarray(array[:n]))
         terminated = world.done
         truncated = (not terminated) and world.truncated
         if self.render_mode == "human":
             self.render()
-        return world.observe().reshape(-1), float(outcome.rewards.sum()), terminated, truncated, self._info()
+        return world.observe().reshape(-1), float(world.rewards.sum()), terminated, truncated, self._info()
 
     def _info(self) -> dict[str, Any]:
         world = self.world

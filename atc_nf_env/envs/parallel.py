@@ -11,6 +11,7 @@ from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.env_logger import EnvLogger
+from pettingzoo.utils import AgentSelector
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
 from atc_nf_env.envs import EnvConfig, draw_episode_seed
@@ -19,7 +20,7 @@ from atc_nf_env.scenarios import check_seed
 
 AGENT_PREFIX = "aircraft_"
 _SCALAR_INFO_KEYS = tuple(key for key in AIRCRAFT_INFO_KEYS if key != "waypoint_nm")
-_ROW_KEYS = (*_SCALAR_INFO_KEYS, "waypoint_nm")
+_INFO_KEYS = (*_SCALAR_INFO_KEYS, "waypoint_nm", "min_separation_nm", "time_s", "episode_seed")
 
 
 class ATCParallelEnv(ParallelEnv):
@@ -181,20 +182,15 @@ class ATCParallelEnv(ParallelEnv):
         return observations, infos
 
     def _infos(self, agents: list[str], index: list[int]) -> dict[str, dict[str, Any]]:
-        """Per-agent info dicts from the world's info arrays (same keys at reset and step)."""
+        """Per-agent info dicts from the world's info records (same keys at reset and step)."""
         world = self.world
-        arrays, min_separation = world.info_arrays()
-        rows = list(zip(*[arrays[key].tolist() for key in _SCALAR_INFO_KEYS], arrays["waypoint_nm"]))
-        common: dict[str, Any] = {
-            "min_separation_nm": min_separation,
-            "time_s": float(world.sim.time_s),  # type: ignore[union-attr]
-            "episode_seed": world.episode_seed,
-        }
+        rows = world.info.tolist()
+        waypoints = world.last_waypoints
+        common = (world.min_separation_nm, float(world.sim.time_s), world.episode_seed)  # type: ignore[union-attr]
         wind = world.sim.wind_kt if self.cfg.expose_wind else None  # type: ignore[union-attr]
         infos: dict[str, dict[str, Any]] = {}
         for agent, i in zip(agents, index):
-            info = dict(zip(_ROW_KEYS, rows[i]))
-            info.update(common)
+            info = dict(zip(_INFO_KEYS, (*rows[i], waypoints[i], *common)))
             if wind is not None:
                 info["wind_kt"] = wind.copy()
             infos[agent] = info
@@ -230,8 +226,12 @@ class ATCParallelEnv(ParallelEnv):
                 )
             return {}, {}, {}, {}, {}
         try:
-            stacked = np.array([actions[agent] for agent in live], dtype=np.float64)
-            ok = stacked.shape == (len(live), 2) and bool(np.isfinite(stacked).all())
+            stacked = np.array([actions[agent] for agent in live])
+            # complex (its imaginary part would be dropped), objects, strings: the slow path
+            ok = stacked.dtype.kind in "biuf" and stacked.shape == (len(live), 2)
+            if ok:
+                stacked = stacked.astype(np.float64)
+                ok = bool(np.isfinite(stacked).all())
         except KeyError:
             unknown = [agent for agent in actions if agent not in self._index]
             if unknown:
@@ -244,9 +244,8 @@ class ATCParallelEnv(ParallelEnv):
             ) from None
         except (TypeError, ValueError):
             ok = False
-        if not ok:  # find the culprit and say what is wrong with it
-            for agent in live:
-                _agent_action(agent, actions[agent])
+        if not ok:  # find the culprit and say what is wrong with it (or convert one by one)
+            stacked = np.array([_agent_action(agent, actions[agent]) for agent in live])
         n = world.n_aircraft
         index = self._live_index
         if len(live) == n:
@@ -254,29 +253,40 @@ class ATCParallelEnv(ParallelEnv):
         else:
             raw = np.zeros((n, 2))
             raw[index] = stacked
-        # NaN and inf were refused above; values outside the box are clipped by the world.
-        clipped = (raw < -1.0).any(axis=1) | (raw > 1.0).any(axis=1)
-        outcome, _ = world.step(raw, clipped)
+        world.step(raw)  # clips to the box, and reports what it clipped in the infos
         obs = world.observe()
-        index_list = index.tolist()
-        flying = world.flying[index].tolist()
-        rewards_list = outcome.rewards[0, index].tolist()
+        flying = world.flying.tolist()
+        rewards_all = world.rewards.tolist()
+        rows = world.info.tolist()
+        waypoints = world.last_waypoints
+        common = (world.min_separation_nm, world.sim.time_s, world.episode_seed)  # type: ignore[union-attr]
+        wind = world.sim.wind_kt if self.cfg.expose_wind else None  # type: ignore[union-attr]
         truncate = world.truncated
-        observations = {agent: obs[i] for agent, i in zip(live, index_list)}
-        rewards = dict(zip(live, rewards_list))
-        terminations = {agent: not alive for agent, alive in zip(live, flying)}
+        observations: dict[str, np.ndarray] = {}
+        rewards: dict[str, float] = {}
+        terminations: dict[str, bool] = {}
+        infos: dict[str, dict[str, Any]] = {}
+        still_flying: list[str] = []
+        for agent, i in zip(live, index.tolist()):
+            observations[agent] = obs[i]
+            rewards[agent] = rewards_all[i]
+            alive = flying[i]
+            terminations[agent] = not alive
+            if alive:
+                still_flying.append(agent)
+            info = dict(zip(_INFO_KEYS, (*rows[i], waypoints[i], *common)))
+            if wind is not None:
+                info["wind_kt"] = wind.copy()
+            infos[agent] = info
         # At the time limit every agent of the step is truncated, also one that arrives or
         # leaves on that step (then terminated too): the last step never mixes agents that
         # are only terminated with agents that are only truncated, so wrappers that end
         # the episode on "all terminated or all truncated" (RLlib's) end it cleanly.
         truncations = dict.fromkeys(live, truncate)
-        infos = self._infos(live, index_list)
         if truncate:
             self.agents = []
-        elif all(flying):
-            self.agents = live
-        else:
-            self.agents = [agent for agent, alive in zip(live, flying) if alive]
+        elif len(still_flying) != len(live):
+            self.agents = still_flying
         if len(self.agents) != len(live):
             self._live_index = np.array([self._index[agent] for agent in self.agents], dtype=np.int64)
         if self.render_mode == "human":
@@ -302,6 +312,8 @@ class ATCParallelEnv(ParallelEnv):
 
 def _agent_action(agent: str, value: Any) -> np.ndarray:
     try:
+        if np.iscomplexobj(value):  # float64 would silently drop the imaginary part
+            raise TypeError("complex numbers")
         array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(
@@ -332,13 +344,72 @@ class raw_env(parallel_to_aec_wrapper):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(ATCParallelEnv(**kwargs))
 
+    def step(self, action: Any) -> None:
+        """PettingZoo's ``parallel_to_aec_wrapper.step`` without its copies of the parallel
+        env's dicts (fresh every step here) and its sort when no agent ended."""
+        agent = self.agent_selection
+        if self.terminations[agent] or self.truncations[agent]:
+            del self._actions[agent]
+            self._was_dead_step(action)
+            return
+        self._actions[agent] = action
+        if not self._agent_selector.is_last():
+            if self._agent_selector.is_first():
+                self._clear_rewards()
+            self.agent_selection = self._agent_selector.next()
+            return
+        observations, rewards, terminations, truncations, infos = self.env.step(self._actions)
+        self._observations = observations
+        self.terminations = terminations
+        self.truncations = truncations
+        self.infos = infos
+        self.rewards = rewards
+        self._cumulative_rewards = dict(rewards)
+        live = self.env.agents
+        if len(live) == len(observations):  # nobody ended: no dead agent to step first
+            self.agents = list(live)
+        else:
+            still = set(live)
+            self.agents = live + [name for name in sorted(observations, key=str) if name not in still]
+        if live:
+            self._agent_selector = AgentSelector(live)
+            self.agent_selection = self._agent_selector.reset()
+        if len(live) != len(observations):
+            self._deads_step_first()
+
     def render(self, mode: str | None = None) -> np.ndarray | None:
         """See ``ATCParallelEnv.render``."""
         return self.env.render(mode)
 
 
+def _forwarded(name: str) -> property:
+    def get(self: "_OrderEnforcingWrapper") -> Any:
+        if not self._has_reset:
+            raise AttributeError(f"{name} cannot be accessed before reset")
+        return getattr(self.env, name)
+
+    return property(get, doc=f"The wrapped env's ``{name}`` (after reset).")
+
+
 class _OrderEnforcingWrapper(wrappers.OrderEnforcingWrapper):
-    """PettingZoo's wrapper, with ``render`` taking the mode that RLlib's wrapper passes."""
+    """PettingZoo's wrapper, with ``render`` taking the mode that RLlib's wrapper passes,
+    and the attributes that clients read at every agent step (``agents``,
+    ``agent_selection``, ``terminations``, ..., ``last()``) forwarded directly: PettingZoo's
+    wrapper finds them through ``__getattr__``, which cost more than the env's own
+    bookkeeping. Same checks: each raises AttributeError before the first reset."""
+
+    agents = _forwarded("agents")
+    agent_selection = _forwarded("agent_selection")
+    terminations = _forwarded("terminations")
+    truncations = _forwarded("truncations")
+    rewards = _forwarded("rewards")
+    infos = _forwarded("infos")
+    _cumulative_rewards = _forwarded("_cumulative_rewards")
+
+    def last(self, observe: bool = True) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        if not self._has_reset:
+            raise AttributeError("agent_selection cannot be accessed before reset")
+        return self.env.last(observe)
 
     def render(self, mode: str | None = None) -> np.ndarray | None:
         if not self._has_reset:
