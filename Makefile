@@ -12,7 +12,7 @@ DEMO_BIN := $(DEMO_VENV)/bin
 # torch>=2.3, and a bare requirement would pull a multi-GB CUDA build.
 TORCH ?= torch==2.13.0
 
-.PHONY: demo test bench reproduce clean
+.PHONY: demo test test-integrations bench reproduce clean
 
 $(BIN)/atc-nf: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -37,6 +37,42 @@ demo: $(DEMO_BIN)/atc-nf
 test: $(BIN)/atc-nf
 	$(BIN)/python -m pytest -q
 
+# The MARL libraries (integration_tests/, examples/train_*.py) in venvs of their own:
+# RLlib pins an older gymnasium than the default venv, BenchMARL an older torchrl than
+# TorchRL's example uses. Each example trains a few iterations; each venv's tests are
+# bounded by INTEGRATIONS_TIMEOUT_S seconds.
+RLLIB_VENV ?= .venv-rllib
+TORCH_VENV ?= .venv-torch
+BENCHMARL_VENV ?= .venv-benchmarl
+INTEGRATIONS_TIMEOUT_S ?= 1500
+
+$(RLLIB_VENV)/.installed: pyproject.toml examples/requirements-rllib.txt
+	$(PYTHON) -m venv $(RLLIB_VENV)
+	$(RLLIB_VENV)/bin/pip install --quiet --upgrade pip
+	$(RLLIB_VENV)/bin/pip install --quiet "$(TORCH)"
+	$(RLLIB_VENV)/bin/pip install --quiet -e . -r examples/requirements-rllib.txt
+	touch $@
+
+$(TORCH_VENV)/.installed: pyproject.toml examples/requirements-torch.txt
+	$(PYTHON) -m venv $(TORCH_VENV)
+	$(TORCH_VENV)/bin/pip install --quiet --upgrade pip
+	$(TORCH_VENV)/bin/pip install --quiet "$(TORCH)"
+	$(TORCH_VENV)/bin/pip install --quiet -e . -r examples/requirements-torch.txt
+	touch $@
+
+$(BENCHMARL_VENV)/.installed: pyproject.toml examples/requirements-benchmarl.txt
+	$(PYTHON) -m venv $(BENCHMARL_VENV)
+	$(BENCHMARL_VENV)/bin/pip install --quiet --upgrade pip
+	$(BENCHMARL_VENV)/bin/pip install --quiet "$(TORCH)"
+	$(BENCHMARL_VENV)/bin/pip install --quiet -e . -r examples/requirements-benchmarl.txt
+	$(BENCHMARL_VENV)/bin/pip install --quiet --no-deps benchmarl==1.5.2
+	touch $@
+
+test-integrations: $(RLLIB_VENV)/.installed $(TORCH_VENV)/.installed $(BENCHMARL_VENV)/.installed
+	timeout $(INTEGRATIONS_TIMEOUT_S) $(TORCH_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_torch_libraries.py
+	timeout $(INTEGRATIONS_TIMEOUT_S) $(BENCHMARL_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_benchmarl.py
+	timeout $(INTEGRATIONS_TIMEOUT_S) $(RLLIB_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_rllib.py
+
 bench: $(BIN)/atc-nf
 	$(BIN)/python bench/bench_kernel.py --write
 	$(BIN)/python bench/integration_step_study.py --write
@@ -47,4 +83,4 @@ reproduce: $(BIN)/atc-nf
 	$(BIN)/atc-nf reproduce --runs 1000
 
 clean:
-	rm -rf $(VENV) $(DEMO_VENV) out
+	rm -rf $(VENV) $(DEMO_VENV) $(RLLIB_VENV) $(TORCH_VENV) $(BENCHMARL_VENV) out
