@@ -186,8 +186,7 @@ def conclusions(rows: list[dict[str, Any]]) -> list[str]:
             f": per-run minimum separation {lo:.1f} nm at the least and {med:.1f} nm in the median "
             f"(paper 11.5-16 nm), {base['mpc4']['runs_with_los']} runs with a loss of separation and "
             f"{base['mpc4']['runs_with_breach']} with an envelope breach in {base['mpc4']['runs']}; "
-            f"every aircraft home in {base['mpc4']['all_home']} of them (the MPC's stranded aircraft "
-            "are its own open problem, REPRODUCTION.md above)."
+            f"every aircraft home in {base['mpc4']['all_home']} of them."
         )
     else:
         lines[-1] += "."
