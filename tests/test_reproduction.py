@@ -1,5 +1,5 @@
 """The reproduction's machinery: build fingerprints, every-step airspeed bands, derived
-report cells and marked sections."""
+report cells, marked sections, and the README's summary equal to REPRODUCTION.md's."""
 
 from __future__ import annotations
 
@@ -162,3 +162,10 @@ def test_reproduce_end_to_end_keeps_marked_sections_and_fills_the_readme(tmp_pat
     assert f"<!-- begin reproduction-summary -->\n{summary}\n<!-- end reproduction-summary -->" in readme.read_text()
     assert {p.name for p in (tmp_path / "fig").iterdir()} >= {
         "mpc_converging4_airspeed_bands.png", "mpc_converging6_airspeed_bands.png"}
+
+
+def test_readme_results_equal_the_reproduction_summary() -> None:
+    report = (ROOT / "REPRODUCTION.md").read_text()
+    summary = report.split("## In short\n\n", 1)[1].split("\n\n", 1)[0]
+    block = reproduce.marked_blocks((ROOT / "README.md").read_text())[reproduce.SUMMARY_BLOCK]
+    assert block == f"<!-- begin {reproduce.SUMMARY_BLOCK} -->\n{summary}\n<!-- end {reproduce.SUMMARY_BLOCK} -->"
