@@ -86,16 +86,17 @@ every period, the recovery angles turned every missed aircraft home in the runs 
 without re-aiming them.
 
 Measured (wind σ = 5.17 m/s, K = 1000, ``atc-nf evaluate --policy mpc --scenario S
---runs R --workers 1 [--proposal paper]``, seeds 0..R−1):
+--runs R --workers 1 [--proposal paper]``, seeds 0..R−1). The "homing" rows are flown
+by the kernel with the saddle's sub-steps; the "paper" rows by the kernel before them:
 
 | scenario | proposal | runs | every aircraft home | LoS | runs with a step outside [366, 540] kt | fallbacks | mean flight (arrived) | airspeed range |
 |---|---|---:|---:|---:|---:|---:|---:|---:|
-| converging-4 | paper  | 60 | 54 | 0 | 0 | 0 | 75.5 min | 366.6 .. 520.2 kt |
-| converging-4 | homing | 60 | 60 | 0 | 0 | 0 | 67.3 min | 370.9 .. 535.2 kt |
-| converging-6 | paper  | 60 | 51 | 0 | 1 (seed 32) | 2 | 88.2 min | −471.3 .. 539.4 kt |
-| converging-6 | homing | 60 | 60 | 0 | 0 | 0 | 70.2 min | 370.2 .. 535.1 kt |
-| random-4     | homing | 30 | 30 | 0 | 0 | 0 | 64.0 min | 373.1 .. 530.3 kt |
-| random-6     | homing | 30 | 30 | 0 | 0 | 0 | 66.8 min | 370.5 .. 532.5 kt |
+| converging-4 | paper  | 60  | 54  | 0 | 0 | 0 | 75.5 min | 366.6 .. 520.2 kt |
+| converging-4 | homing | 300 | 300 | 0 | 0 | 0 | 67.2 min | 370.1 .. 536.0 kt |
+| converging-6 | paper  | 60  | 51  | 0 | 1 (seed 32) | 2 | 88.2 min | −471.3 .. 539.4 kt |
+| converging-6 | homing | 300 | 300 | 0 | 0 | 0 | 70.1 min | 370.2 .. 535.9 kt |
+| random-4     | homing | 78  | 78  | 0 | 0 | 0 | 64.2 min | 372.2 .. 535.3 kt |
+| random-6     | homing | 60  | 60  | 0 | 0 | 0 | 66.5 min | 370.1 .. 532.5 kt |
 
 No decision of the "homing" runs above needed a wider search round.
 
