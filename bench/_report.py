@@ -7,6 +7,8 @@ from pathlib import Path
 
 import os
 
+from atc_nf_env.experiments.marked_sections import write_marked_section
+
 BENCHMARKS = Path(__file__).resolve().parent.parent / "BENCHMARKS.md"
 HEADER = (
     "# Benchmarks\n\nFigures printed by the scripts under `bench/` (each rewrites its own section "
@@ -20,13 +22,4 @@ def machine() -> str:
 
 def write_section(name: str, text: str) -> None:
     """Replace the section delimited by markers named ``name`` (or append it)."""
-    begin, end = f"<!-- begin {name} -->", f"<!-- end {name} -->"
-    current = BENCHMARKS.read_text() if BENCHMARKS.exists() else HEADER
-    block = f"{begin}\n{text.rstrip()}\n{end}"
-    if begin in current and end in current:
-        head, rest = current.split(begin, 1)
-        _, tail = rest.split(end, 1)
-        current = head + block + tail
-    else:
-        current = current.rstrip() + "\n\n" + block + "\n"
-    BENCHMARKS.write_text(current)
+    write_marked_section(BENCHMARKS, name, text, header=HEADER)

@@ -30,6 +30,7 @@ import numpy as np
 
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import run_episode
+from atc_nf_env.experiments.marked_sections import write_marked_section
 from atc_nf_env.experiments.nf_alone import closest_approach_to_centre_nm
 from atc_nf_env.scenarios import converging
 from atc_nf_env.units import WIND_SIGMA_MPS
@@ -231,16 +232,7 @@ def conclusions(rows: list[dict[str, Any]]) -> list[str]:
 
 def write_section(text: str, path: Path = REPRODUCTION) -> None:
     """Replace the text between this study's markers (or append the marked section)."""
-    begin, end = f"<!-- begin {SECTION} -->", f"<!-- end {SECTION} -->"
-    current = path.read_text() if path.exists() else ""
-    block = f"{begin}\n{text.rstrip()}\n{end}"
-    if begin in current and end in current:
-        head, rest = current.split(begin, 1)
-        _, tail = rest.split(end, 1)
-        current = head + block + tail
-    else:
-        current = current.rstrip() + "\n\n" + block + "\n"
-    path.write_text(current)
+    write_marked_section(path, SECTION, text)
 
 
 def main(argv: list[str] | None = None) -> int:
