@@ -1,7 +1,13 @@
-"""The MPC's many-run safety claim at the paper's size, 1000 seeded runs each of the 4-
-and 6-aircraft encounters under the paper's wind, asserted run by run (slow: about an
-hour on 2 cores; run with `pytest -m slow`). ``test_reproduction_safety.py`` asserts the
-same on 50 runs in every CI run."""
+"""The MPC's many-run safety claim at the paper's size, asserted run by run: 1000 seeded
+runs each of the 4- and 6-aircraft converging encounters and of the seeded random 4- and
+6-aircraft encounters under the paper's wind, the same seeds as ``atc-nf reproduce --runs
+1000`` (slow: over an hour on 2 cores; run with `pytest -m slow`).
+``test_reproduction_safety.py`` asserts the converging half on 50 runs in every CI run.
+
+Every aircraft home in every converging run, and in at least 999 of 1000 random runs (a
+random encounter may start two aircraft in a geometry that no waypoint resolves in time);
+in every run no loss of separation, no integration step outside the envelope.
+"""
 
 from __future__ import annotations
 
@@ -13,11 +19,15 @@ from atc_nf_env.evaluate import Study, evaluate, read_results
 RUNS = 1000
 
 
-@pytest.fixture(scope="module", params=[4, 6], ids=["converging-4", "converging-6"])
+SCENARIOS = ["converging-4", "converging-6", "random-4", "random-6"]
+
+
+@pytest.fixture(scope="module", params=SCENARIOS)
 def mpc_runs(request, tmp_path_factory) -> list[dict]:
     path = tmp_path_factory.mktemp("slow") / "runs.jsonl"
-    evaluate(Study(policy="mpc", scenario=f"converging-{request.param}"), RUNS, out=path, progress=False)
-    _, records = read_results(path)
+    evaluate(Study(policy="mpc", scenario=request.param), RUNS, out=path, progress=False)
+    header, records = read_results(path)
+    assert header["scenario"] == request.param
     assert sorted(r["seed"] for r in records) == list(range(RUNS))
     return records
 
@@ -27,8 +37,12 @@ def _seeds(records: list[dict], bad) -> list[int]:
 
 
 @pytest.mark.slow
-def test_every_aircraft_arrives_in_every_run(mpc_runs) -> None:
-    assert _seeds(mpc_runs, lambda r: not all(r["arrived"])) == []
+def test_every_aircraft_arrives(mpc_runs, request) -> None:
+    stranded = _seeds(mpc_runs, lambda r: not all(r["arrived"]))
+    if request.node.callspec.params["mpc_runs"].startswith("converging"):
+        assert stranded == []
+    else:
+        assert len(stranded) <= RUNS // 1000, stranded
 
 
 @pytest.mark.slow
@@ -45,5 +59,7 @@ def test_no_integration_step_leaves_the_envelope(mpc_runs) -> None:
 
 
 @pytest.mark.slow
-def test_no_decision_falls_back(mpc_runs) -> None:
+def test_no_decision_falls_back_in_the_converging_encounters(mpc_runs, request) -> None:
+    if not request.node.callspec.params["mpc_runs"].startswith("converging"):
+        pytest.skip("the fallback claim is made for the paper's converging encounters only")
     assert _seeds(mpc_runs, lambda r: r["policy_info"]["fallbacks"] > 0) == []
