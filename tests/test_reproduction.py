@@ -12,6 +12,7 @@ import pytest
 from atc_nf_env import build
 from atc_nf_env.evaluate import Study, evaluate, read_results, run_one
 from atc_nf_env.experiments import reproduce
+from atc_nf_env.experiments.marked_sections import marked_sections, replace_marked_section
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -120,7 +121,7 @@ def test_report_cells_are_counted_from_the_runs() -> None:
 
 def test_marked_blocks_survive_and_the_readme_block_is_replaced(tmp_path: Path) -> None:
     text = "head\n<!-- begin proximity-range -->\n| a | b |\n<!-- end proximity-range -->\ntail\n"
-    assert reproduce.marked_blocks(text) == {
+    assert marked_sections(text) == {
         "proximity-range": "<!-- begin proximity-range -->\n| a | b |\n<!-- end proximity-range -->"}
     readme = tmp_path / "README.md"
     readme.write_text("x\n<!-- begin reproduction-summary -->\nold\n<!-- end reproduction-summary -->\ny\n")
@@ -167,5 +168,12 @@ def test_reproduce_end_to_end_keeps_marked_sections_and_fills_the_readme(tmp_pat
 def test_readme_results_equal_the_reproduction_summary() -> None:
     report = (ROOT / "REPRODUCTION.md").read_text()
     summary = report.split("## In short\n\n", 1)[1].split("\n\n", 1)[0]
-    block = reproduce.marked_blocks((ROOT / "README.md").read_text())[reproduce.SUMMARY_BLOCK]
+    block = marked_sections((ROOT / "README.md").read_text())[reproduce.SUMMARY_BLOCK]
     assert block == f"<!-- begin {reproduce.SUMMARY_BLOCK} -->\n{summary}\n<!-- end {reproduce.SUMMARY_BLOCK} -->"
+
+
+def test_a_section_is_replaced_only_between_its_own_markers() -> None:
+    text = "<!-- end a -->\n<!-- begin b -->\nkeep\n<!-- end b -->\n"
+    assert replace_marked_section(text, "a", "new") is None  # an end marker alone is no section
+    assert replace_marked_section("no markers", "a", "new") is None
+    assert replace_marked_section(text, "b", "new\n") == "<!-- end a -->\n<!-- begin b -->\nnew\n<!-- end b -->\n"

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import re
 import sys
 import warnings
 from pathlib import Path
@@ -38,6 +37,7 @@ from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import MAX_EPISODE_S, run_episode
 from atc_nf_env.evaluate import Study, evaluate, read_results
 from atc_nf_env.experiments import nf_alone
+from atc_nf_env.experiments.marked_sections import marked_sections, replace_marked_section
 from atc_nf_env.plotting import _pyplot, aircraft_color, plot_airspeed, plot_trajectories
 from atc_nf_env.scenarios import converging
 from atc_nf_env.units import AIRSPEED_MAX_KT, AIRSPEED_MIN_KT, AIRSPEED_NOMINAL_KT, WIND_SIGMA_MPS
@@ -57,7 +57,6 @@ MPC_STUDIES: dict[str, dict[str, Any] | None] = {
 }
 
 SUMMARY_BLOCK = "reproduction-summary"
-_BLOCK = re.compile(r"<!-- begin (?P<name>[\w.-]+) -->.*?<!-- end (?P=name) -->", re.S)
 
 
 # -- airspeed bands ---------------------------------------------------------------------
@@ -334,19 +333,6 @@ def summary_paragraph(results: dict[str, Any]) -> str:
     )
 
 
-def marked_blocks(text: str) -> dict[str, str]:
-    """The ``<!-- begin NAME -->`` … ``<!-- end NAME -->`` blocks of a text, by name."""
-    return {m.group("name"): m.group(0) for m in _BLOCK.finditer(text)}
-
-
-def replace_block(text: str, name: str, body: str) -> str | None:
-    """``text`` with block ``name``'s content replaced by ``body``; None if it has no such block."""
-    pattern = re.compile(rf"<!-- begin {re.escape(name)} -->.*?<!-- end {re.escape(name)} -->", re.S)
-    if not pattern.search(text):
-        return None
-    return pattern.sub(lambda _: f"<!-- begin {name} -->\n{body}\n<!-- end {name} -->", text, count=1)
-
-
 def write_report(path: Path, results: dict[str, Any]) -> None:
     """Write the table; blocks that other scripts wrote between markers in the old report
     are kept, after the generated part."""
@@ -403,7 +389,7 @@ def write_report(path: Path, results: dict[str, Any]) -> None:
     ]
     text = "\n".join(lines)
     if path.exists():
-        for block in marked_blocks(path.read_text()).values():
+        for block in marked_sections(path.read_text()).values():
             text += "\n" + block + "\n"
     path.write_text(text)
 
@@ -412,7 +398,7 @@ def update_readme(path: Path, summary: str) -> bool:
     """Put the summary paragraph into the README's marked block; False if it has none."""
     if not path.exists():
         return False
-    text = replace_block(path.read_text(), SUMMARY_BLOCK, summary)
+    text = replace_marked_section(path.read_text(), SUMMARY_BLOCK, summary)
     if text is None:
         return False
     path.write_text(text)
