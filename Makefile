@@ -14,11 +14,19 @@ TORCH ?= torch==2.13.0
 
 .PHONY: demo test test-integrations bench reproduce clean
 
+# A venv with the CPU torch installed first, then the given pip arguments:
+# $(call torch_venv,VENV_DIR,PIP_ARGUMENTS)
+define torch_venv
+	$(PYTHON) -m venv $(1)
+	$(1)/bin/pip install --quiet --upgrade pip
+	$(1)/bin/pip install --quiet "$(TORCH)"
+	$(1)/bin/pip install --quiet $(2)
+endef
+
+# The extras in a variable: a comma inside $(call)'s arguments would split them.
+TEST_INSTALL := -e ".[test,rl,ray]"
 $(BIN)/atc-nf: pyproject.toml
-	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet "$(TORCH)"
-	$(BIN)/pip install --quiet -e ".[test,rl,ray]"
+	$(call torch_venv,$(VENV),$(TEST_INSTALL))
 	touch $@
 
 # Quick: no pip inside the venv (the host's pip installs into it; `.venv-demo/bin/python -m
@@ -47,24 +55,15 @@ BENCHMARL_VENV ?= .venv-benchmarl
 INTEGRATIONS_TIMEOUT_S ?= 1500
 
 $(RLLIB_VENV)/.installed: pyproject.toml examples/requirements-rllib.txt
-	$(PYTHON) -m venv $(RLLIB_VENV)
-	$(RLLIB_VENV)/bin/pip install --quiet --upgrade pip
-	$(RLLIB_VENV)/bin/pip install --quiet "$(TORCH)"
-	$(RLLIB_VENV)/bin/pip install --quiet -e . -r examples/requirements-rllib.txt
+	$(call torch_venv,$(RLLIB_VENV),-e . -r examples/requirements-rllib.txt)
 	touch $@
 
 $(TORCH_VENV)/.installed: pyproject.toml examples/requirements-torch.txt
-	$(PYTHON) -m venv $(TORCH_VENV)
-	$(TORCH_VENV)/bin/pip install --quiet --upgrade pip
-	$(TORCH_VENV)/bin/pip install --quiet "$(TORCH)"
-	$(TORCH_VENV)/bin/pip install --quiet -e . -r examples/requirements-torch.txt
+	$(call torch_venv,$(TORCH_VENV),-e . -r examples/requirements-torch.txt)
 	touch $@
 
 $(BENCHMARL_VENV)/.installed: pyproject.toml examples/requirements-benchmarl.txt
-	$(PYTHON) -m venv $(BENCHMARL_VENV)
-	$(BENCHMARL_VENV)/bin/pip install --quiet --upgrade pip
-	$(BENCHMARL_VENV)/bin/pip install --quiet "$(TORCH)"
-	$(BENCHMARL_VENV)/bin/pip install --quiet -e . -r examples/requirements-benchmarl.txt
+	$(call torch_venv,$(BENCHMARL_VENV),-e . -r examples/requirements-benchmarl.txt)
 	$(BENCHMARL_VENV)/bin/pip install --quiet --no-deps benchmarl==1.5.2
 	touch $@
 
