@@ -1,0 +1,784 @@
+"""Frozen copy of atc_nf_env/kernel.py as of the benchmark yardstick (see __init__).
+
+The one batched simulator kernel: B worlds of N aircraft under the NF control law.
+
+    advance(state[B, N], waypoints[B, N], wind[B], seconds) -> trace
+
+Every part of the project that moves aircraft calls this: the environments (B = 1 or
+the number of vector envs), the MPC (B = K candidates, one decision at once) and the
+Monte Carlo evaluator. It is compiled with numba, parallel over worlds, and allocates
+nothing inside its integration loop (its scratch comes from the caller).
+
+Physics per aircraft i, integrated at ``dt_s`` with the second-order Adams-Bashforth
+scheme (explicit Euler on the first step under a new waypoint) (paper (1), (5)):
+
+    ẋ_i = u_i cos θ_i + w_x,   ẏ_i = u_i sin θ_i + w_y,   θ̇_i = ω_i
+    u_i = −sgn(P_i) F_i − (∂Φ_i/∂t + |∂Φ_i/∂t|) / (2 P_i)
+    ω_i = −k_θ (θ_i − θ_nh,i) + θ̇_nh,i
+
+with F_i = k_u ‖∇_iΦ_i‖² + k_z ‖q_i − q_d‖², P_i = [cos θ_i, sin θ_i] · ∇_iΦ_i,
+∂Φ_i/∂t = Σ_j u_j ∇_jΦ_i · [cos θ_j, sin θ_j] evaluated with the neighbours' feedback
+airspeeds u_j = −sgn(P_j) F_j of the same instant (the law is implicit in u_j, whose own
+∂Φ_j/∂t term depends on u_i; the previous step's u_j diverged in head-on encounters),
+and θ_nh the angle of sgn(p_i) ∇_iΦ_i. The wind w enters the ground velocity only: the envelope
+constrains airspeed, and the NF never sees the wind.
+
+Guards against the law's singularities (each keeps a value finite that the law
+leaves undefined; none acts in an ordinary flight):
+
+1. |P_i| is floored at ``p_floor`` in the 1/P_i term: P_i = 0 when the heading is
+   normal to the gradient, e.g. just after a waypoint switch.
+2. The commanded airspeed is saturated at ±``airspeed_cap_kt``: as P_i → 0 the 1/P_i
+   term grows without bound. The cap is far outside the envelope, so a saturated
+   step is still counted as a violation and no feasibility verdict changes.
+   A step in which any command saturates is flown in sub-steps (guard 8).
+3. Where ‖∇_iΦ_i‖ < ``grad_floor`` (at q_i = q_d, or a critical point) the gradient
+   has no direction, and θ_nh = θ_d (the paper's rule at q_i = q_d).
+4. Heading errors are wrapped to [−π, π): θ_i − θ_nh is an angle, and an unwrapped
+   difference of 2π would command a full useless turn.
+5. θ̇_nh is a backward difference of θ_nh over the last step (the law needs it; the
+   closed form would need the Hessian of Φ). It is reset to 0 on a waypoint switch and
+   when θ_nh jumps by more than π/2 in one step (sgn(p_i) flipping, or a switch): a
+   jump is not a rate, and differencing it would command an arbitrary turn.
+6. Disks that overlap give G_i = 0 (see ``nf.proximity_bump``), not a negative G_i.
+7. An aircraft whose disk reaches the workspace boundary (β0 ≤ 0) has left and is no
+   longer simulated, so Φ is never evaluated where it is undefined.
+8. Sub-steps at the singularity. Near a critical point of Φ_i with neighbours closing
+   in (∂Φ_i/∂t > 0, |P_i| → 0; the converging encounters without wind reach one), the
+   1/P_i term saturates and its sign follows the sign of P_i: u_i = −u_cap sgn(P_i).
+   Where Φ_i has a minimum along the heading this drives P_i back to 0 from either
+   side, a sliding motion along P_i = 0 whose airspeed is bounded (Filippov's
+   convex combination of ±u_cap). A step of dt overshoots that surface by up to
+   u_cap · dt (2 nm at 5 s) and the sign then alternates step by step, so the flight
+   depended on dt. A step in which any command saturates is therefore flown in
+   ceil(dt / ``substep_s``) explicit-Euler sub-steps, each with fresh commands; the
+   overshoot falls to u_cap · substep_s (0.04 nm at 0.1 s) whatever dt is. The outer
+   grid is kept: traces, records and violation counts stay per integration step
+   (min/max airspeed, separation and arrival are checked on every sub-step), and
+   the step after a refined one is Euler (AB2's previous rates are a sub-step old).
+   Where the world stops at this step anyway (``stop_on_violation`` and a command
+   outside the envelope, as in the MPC's candidates) the step is not refined: its
+   first sub-step has the same command and the same verdict.
+
+An aircraft that arrives (its path passes within Δ of its destination, checked on
+every integration step's segment) or leaves is frozen and stops being an obstacle.
+
+State layout: float64 array (B, N, N_STATE), fields ``S_*``. The waypoint's desired
+orientation θ_d is set by the kernel when a waypoint changes: the bearing from the
+aircraft to the waypoint (so the aircraft starts on the dipole axis, flying toward it),
+or the scenario's arrival heading when the waypoint is the destination itself.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from frozen_kernel import nf
+from frozen_kernel.nf import FAST_MATH_FLAGS
+from frozen_kernel.nf import (
+    ABSENT,
+    ARRIVED,
+    FLYING,
+    LEFT,
+    P_DELTA,
+    P_DT,
+    P_GRAD_FLOOR,
+    P_K_THETA,
+    P_K_U,
+    P_K_Z,
+    P_LENGTH,
+    P_P_FLOOR,
+    P_R_WORLD,
+    P_RADIUS,
+    P_SEP_MIN,
+    P_STOP_ON_VIOLATION,
+    P_SUBSTEP,
+    P_U_CAP,
+    P_U_MAX,
+    P_U_MIN,
+)
+SECONDS_PER_HOUR = 3600.0
+
+# State fields.
+S_X = 0  # position x, nm
+S_Y = 1  # position y, nm
+S_HEADING = 2  # heading θ, rad (east = 0, counter-clockwise)
+S_AIRSPEED = 3  # airspeed of the last step, kt
+S_THETA_NH = 4  # θ_nh of the last step, rad
+S_WP_X = 5  # current waypoint x, nm
+S_WP_Y = 6  # current waypoint y, nm
+S_THETA_D = 7  # desired orientation at the waypoint, rad
+S_DEST_X = 8  # destination x, nm
+S_DEST_Y = 9  # destination y, nm
+S_DEST_HEADING = 10  # arrival heading at the destination, rad
+S_STATUS = 11  # FLYING, ARRIVED, LEFT or ABSENT
+S_TIME = 12  # time flown, s (frozen at arrival or departure)
+S_PATH = 13  # path length flown over the ground, nm
+S_FRESH = 14  # 1 while no step has been flown under the current waypoint
+S_COS_D = 15  # cos θ_d (cached: set with θ_d)
+S_SIN_D = 16  # sin θ_d
+S_VX_PREV = 17  # ground velocity of the last step, kt (for the AB2 integrator)
+S_VY_PREV = 18
+S_OMEGA_PREV = 19  # turn rate of the last step, rad/s
+S_LAST_SUBSTEPS = 20  # sub-steps the last integration step was flown in (0 or 1: not refined)
+N_STATE = 21
+
+# Scratch columns of the per-step commands.
+C_U_FEEDBACK = 0  # −sgn(P_i) F_i, kt
+C_OMEGA = 1  # ω_i, rad/s
+C_THETA_NH = 2  # θ_nh, rad
+C_FLEW = 3  # 1 if the aircraft flew this step
+C_P = 4  # P_i, floored (guard 1)
+C_U = 5  # airspeed command of (5a), kt
+C_COS = 6  # cos θ_i
+C_SIN = 7  # sin θ_i
+C_NEAR = 8  # neighbours within the sensing radius
+C_VIOLATED = 9  # 1 once the aircraft's airspeed left the envelope during this step
+N_COMMAND = 10
+
+# Record fields (optional per-step recording).
+R_X, R_Y, R_HEADING, R_AIRSPEED, R_FLEW = 0, 1, 2, 3, 4  # R_FLEW: 1 if it flew that step
+N_RECORD = 5
+
+#: Value of ``Trace.min_separation_nm`` when fewer than two aircraft flew.
+NO_PAIR_SEPARATION_NM = 1.0e9
+
+_HALF_PI = 0.5 * math.pi
+_TWO_PI = 2.0 * math.pi
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _wrap(angle: float) -> float:
+    """Angle wrapped to [−π, π)."""
+    # Differences of wrapped angles lie within ±2π: one conditional shift is enough
+    # there, and cheaper than the general floor that other angles fall back to.
+    if -math.pi <= angle < math.pi:
+        return angle
+    if -3.0 * math.pi <= angle < 3.0 * math.pi:
+        return angle - _TWO_PI if angle >= math.pi else angle + _TWO_PI
+    return angle - _TWO_PI * math.floor((angle + math.pi) / _TWO_PI)
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def _assign_waypoints(state: np.ndarray, waypoints: np.ndarray) -> None:
+    """Store new waypoints and set θ_d where a waypoint changed."""
+    for i in range(state.shape[0]):
+        if state[i, S_STATUS] != FLYING:
+            continue
+        wx = waypoints[i, 0]
+        wy = waypoints[i, 1]
+        if wx == state[i, S_WP_X] and wy == state[i, S_WP_Y]:
+            continue
+        state[i, S_WP_X] = wx
+        state[i, S_WP_Y] = wy
+        if wx == state[i, S_DEST_X] and wy == state[i, S_DEST_Y]:
+            state[i, S_THETA_D] = state[i, S_DEST_HEADING]
+        else:
+            state[i, S_THETA_D] = math.atan2(wy - state[i, S_Y], wx - state[i, S_X])
+        state[i, S_COS_D] = math.cos(state[i, S_THETA_D])
+        state[i, S_SIN_D] = math.sin(state[i, S_THETA_D])
+        state[i, S_FRESH] = 1.0
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py: float) -> float:
+    """Distance from point p to the segment from (x0, y0) to (x1, y1)."""
+    sx = x1 - x0
+    sy = y1 - y0
+    length2 = sx * sx + sy * sy
+    t = 0.0
+    if length2 > 0.0:
+        t = ((px - x0) * sx + (py - y0) * sy) / length2
+        if t < 0.0:
+            t = 0.0
+        elif t > 1.0:
+            t = 1.0
+    ex = x0 + t * sx - px
+    ey = y0 + t * sy - py
+    return math.sqrt(ex * ex + ey * ey)
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _commands(
+    state: np.ndarray,
+    pos: np.ndarray,
+    status: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    nf_consts: tuple,
+    params: np.ndarray,
+    inv_dt: float,
+) -> tuple[bool, bool, bool]:
+    """The law's commands (5a)-(5b) of every flying aircraft from the current positions,
+    into ``command``. Returns (any aircraft flying, any command saturated at the cap
+    (guard 2), any command outside the envelope)."""
+    n = state.shape[0]
+    inv_len = 1.0 / params[P_LENGTH]
+    k_u = params[P_K_U]
+    k_z = params[P_K_Z]
+    k_theta = params[P_K_THETA]
+    u_cap = params[P_U_CAP]
+    p_floor = params[P_P_FLOOR]
+    grad_floor = params[P_GRAD_FLOOR]
+    dphi_dt_gain = params[nf.P_DPHI_DT_GAIN]
+    u_min = params[P_U_MIN]
+    u_max = params[P_U_MAX]
+    any_flying = False
+    # Pass 1, from the positions at the start of the step: every flying aircraft's
+    # gradients, feedback airspeed −sgn(P_i) F_i and heading rate.
+    for i in range(n):
+        if status[i] != FLYING:
+            continue
+        any_flying = True
+        wx = state[i, S_WP_X]
+        wy = state[i, S_WP_Y]
+        theta_d = state[i, S_THETA_D]
+        cos_d = state[i, S_COS_D]
+        sin_d = state[i, S_SIN_D]
+        _, n_near = nf.nf_along_direction(i, pos, status, wx, wy, cos_d, sin_d, nf_consts, grad[i])
+        command[i, C_NEAR] = n_near
+        gx = grad[i, i, 0]
+        gy = grad[i, i, 1]
+        heading = state[i, S_HEADING]
+        cos_h = math.cos(heading)
+        sin_h = math.sin(heading)
+        p_dir = cos_h * gx + sin_h * gy
+        dx = (state[i, S_X] - wx) * inv_len
+        dy = (state[i, S_Y] - wy) * inv_len
+        grad_norm2 = gx * gx + gy * gy
+        f_speed = k_u * grad_norm2 + k_z * (dx * dx + dy * dy)
+        sgn_p = 1.0 if p_dir >= 0.0 else -1.0
+        if grad_norm2 > grad_floor * grad_floor:
+            along = cos_d * dx + sin_d * dy
+            sgn_along = 1.0 if along >= 0.0 else -1.0
+            theta_nh = math.atan2(sgn_along * gy, sgn_along * gx)
+        else:
+            theta_nh = theta_d  # guard 3
+        theta_nh_rate = 0.0
+        if state[i, S_FRESH] == 0.0:
+            jump = _wrap(theta_nh - state[i, S_THETA_NH])
+            if abs(jump) <= _HALF_PI:  # guard 5
+                # Over the length of the last step: dt / (its number of sub-steps).
+                theta_nh_rate = jump * (max(state[i, S_LAST_SUBSTEPS], 1.0) * inv_dt)
+        command[i, C_U_FEEDBACK] = -sgn_p * f_speed
+        command[i, C_OMEGA] = -k_theta * _wrap(heading - theta_nh) + theta_nh_rate  # guard 4
+        command[i, C_THETA_NH] = theta_nh
+        command[i, C_P] = sgn_p * max(abs(p_dir), p_floor)  # guard 1
+        command[i, C_COS] = cos_h
+        command[i, C_SIN] = sin_h
+    saturated = False
+    outside = False
+    if not any_flying:
+        return any_flying, saturated, outside
+    # Pass 2: the ∂Φ_i/∂t term of (5a) with the neighbours' feedback airspeeds.
+    for i in range(n):
+        if status[i] != FLYING:
+            continue
+        dphi_dt = 0.0
+        for j in range(n if command[i, C_NEAR] > 0 else 0):
+            if j == i or status[j] != FLYING:
+                continue
+            along_j = grad[i, j, 0] * command[j, C_COS] + grad[i, j, 1] * command[j, C_SIN]
+            dphi_dt += command[j, C_U_FEEDBACK] * along_j
+        dphi_dt *= dphi_dt_gain
+        u = command[i, C_U_FEEDBACK] - (dphi_dt + abs(dphi_dt)) / (2.0 * command[i, C_P])
+        if not -u_cap < u < u_cap:
+            saturated = True
+            u = min(max(u, -u_cap), u_cap)  # guard 2
+        if not u_min <= u <= u_max:
+            outside = True
+        command[i, C_U] = u
+    return any_flying, saturated, outside
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def _advance_world(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind_x: float,
+    wind_y: float,
+    n_steps: int,
+    params: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    record: np.ndarray,
+    record_every: int,
+) -> tuple[float, int, bool]:
+    """Advance one world by n_steps; returns (min separation, steps done, violated)."""
+    n = state.shape[0]
+    dt = params[P_DT]
+    u_min = params[P_U_MIN]
+    u_max = params[P_U_MAX]
+    delta = params[P_DELTA]
+    sep_min = params[P_SEP_MIN]
+    exit_radius = params[P_R_WORLD] - params[P_RADIUS]
+    stop_on_violation = params[P_STOP_ON_VIOLATION] != 0.0
+    substep_max = params[P_SUBSTEP]
+    # Sub-steps of a refined step: the fewest whose length is at most substep_max.
+    n_refined = max(1, int(math.ceil(dt / substep_max - 1e-9)))
+    pos = state[:, S_X : S_Y + 1]
+    status = state[:, S_STATUS]
+    nf_consts = nf.nf_constants(params)
+    inv_dt = 1.0 / dt
+
+    _assign_waypoints(state, waypoints)
+    for i in range(n):
+        min_airspeed[i] = state[i, S_AIRSPEED]
+        max_airspeed[i] = state[i, S_AIRSPEED]
+        violation_steps[i] = 0
+        worst_excursion[i] = 0.0
+        steps_flown[i] = 0
+        for j in range(n):
+            los_pairs[i, j] = 0
+
+    min_sep2 = NO_PAIR_SEPARATION_NM * NO_PAIR_SEPARATION_NM
+    sep_min2 = sep_min * sep_min
+    violated = False
+    n_record = record.shape[0]
+    if n_record > 0:
+        for i in range(n):
+            record[0, i, R_X] = state[i, S_X]
+            record[0, i, R_Y] = state[i, S_Y]
+            record[0, i, R_HEADING] = state[i, S_HEADING]
+            record[0, i, R_AIRSPEED] = state[i, S_AIRSPEED]
+            record[0, i, R_FLEW] = 1.0 if status[i] == FLYING else 0.0
+
+    step = 0
+    while step < n_steps:
+        any_flying, saturated, outside = _commands(state, pos, status, grad, command, nf_consts, params, inv_dt)
+        if not any_flying:
+            break
+        # Step-size control at the law's singularity: where a command is saturated
+        # (|P_i| → 0 with ∂Φ_i/∂t > 0), the sign of the 1/P_i term flips as the
+        # aircraft crosses P_i = 0, and a full step overshoots the crossing by up to
+        # u_cap · dt (2 nm at 5 s). That step is flown in sub-steps of at most
+        # ``substep_max``, each with fresh commands, so that the motion along P_i ≈ 0
+        # converges as dt shrinks. Not where the world stops at this step anyway: its
+        # first sub-step has the same command, outside the envelope.
+        n_sub = 1
+        if saturated and not (stop_on_violation and outside):
+            n_sub = n_refined
+        h = dt / n_sub
+        nm_per_kt_step = h / SECONDS_PER_HOUR
+        step_violation = False
+        for i in range(n):
+            command[i, C_FLEW] = 0.0
+            command[i, C_VIOLATED] = 0.0
+        for sub in range(n_sub):
+            if sub > 0:
+                any_flying, _, _ = _commands(
+                    state, pos, status, grad, command, nf_consts, params, n_sub * inv_dt
+                )
+                if not any_flying:
+                    break
+            # Move, then check arrival, departure and the envelope.
+            for i in range(n):
+                if status[i] != FLYING:
+                    continue
+                # The first sub-step this call flies: the extremes start there, not at
+                # the airspeed held before it (a scenario's start airspeed was never flown).
+                first_flown = steps_flown[i] == 0 and command[i, C_FLEW] == 0.0
+                command[i, C_FLEW] = 2.0  # flew this sub-step (1: flew an earlier one)
+                u = command[i, C_U]
+                heading = state[i, S_HEADING]
+                x0 = state[i, S_X]
+                y0 = state[i, S_Y]
+                vx = u * command[i, C_COS] + wind_x
+                vy = u * command[i, C_SIN] + wind_y
+                omega = command[i, C_OMEGA]
+                # Second-order Adams-Bashforth (AB2): the airspeed falls steadily as the
+                # waypoint nears, and explicit Euler's O(dt) error in that distance is what
+                # the convergence study saw. AB2 needs the previous step's rates at this
+                # step's length; after a waypoint switch they belong to another law, and
+                # within or after a refined step the command is not smooth (or the step
+                # length changed), so those steps are plain Euler.
+                if state[i, S_FRESH] == 0.0 and state[i, S_LAST_SUBSTEPS] <= 1.0 and n_sub == 1:
+                    x1 = x0 + (1.5 * vx - 0.5 * state[i, S_VX_PREV]) * nm_per_kt_step
+                    y1 = y0 + (1.5 * vy - 0.5 * state[i, S_VY_PREV]) * nm_per_kt_step
+                    new_heading = heading + (1.5 * omega - 0.5 * state[i, S_OMEGA_PREV]) * h
+                else:
+                    x1 = x0 + vx * nm_per_kt_step
+                    y1 = y0 + vy * nm_per_kt_step
+                    new_heading = heading + omega * h
+                state[i, S_VX_PREV] = vx
+                state[i, S_VY_PREV] = vy
+                state[i, S_OMEGA_PREV] = omega
+                state[i, S_LAST_SUBSTEPS] = n_sub
+                state[i, S_X] = x1
+                state[i, S_Y] = y1
+                state[i, S_HEADING] = _wrap(new_heading)
+                state[i, S_AIRSPEED] = u
+                state[i, S_THETA_NH] = command[i, C_THETA_NH]
+                state[i, S_FRESH] = 0.0
+                state[i, S_TIME] += h
+                step_nm = math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
+                state[i, S_PATH] += step_nm
+                if first_flown or u < min_airspeed[i]:
+                    min_airspeed[i] = u
+                if first_flown or u > max_airspeed[i]:
+                    max_airspeed[i] = u
+                excursion = max(u_min - u, u - u_max)
+                if excursion > 0.0:
+                    step_violation = True
+                    if excursion > worst_excursion[i]:
+                        worst_excursion[i] = excursion
+                    if command[i, C_VIOLATED] == 0.0:
+                        violation_steps[i] += 1  # once per integration step
+                        command[i, C_VIOLATED] = 1.0
+                dest_x = state[i, S_DEST_X]
+                dest_y = state[i, S_DEST_Y]
+                reach = delta + step_nm
+                near = (x1 - dest_x) ** 2 + (y1 - dest_y) ** 2 <= reach * reach
+                if near and _segment_distance(x0, y0, x1, y1, dest_x, dest_y) <= delta:
+                    status[i] = ARRIVED
+                elif x1 * x1 + y1 * y1 >= exit_radius * exit_radius:  # guard 7
+                    status[i] = LEFT
+
+            # Separation among the aircraft that flew this sub-step (one that arrived on
+            # it still counts: it was in the airspace during the step).
+            for i in range(n):
+                if command[i, C_FLEW] != 2.0:
+                    continue
+                for j in range(i + 1, n):
+                    if command[j, C_FLEW] != 2.0:
+                        continue
+                    sx = state[i, S_X] - state[j, S_X]
+                    sy = state[i, S_Y] - state[j, S_Y]
+                    sep2 = sx * sx + sy * sy
+                    if sep2 < min_sep2:
+                        min_sep2 = sep2
+                    if sep2 < sep_min2:
+                        los_pairs[i, j] = 1
+                        los_pairs[j, i] = 1
+                        step_violation = True
+            for i in range(n):
+                if command[i, C_FLEW] == 2.0:
+                    command[i, C_FLEW] = 1.0
+        for i in range(n):
+            if command[i, C_FLEW] == 1.0:
+                steps_flown[i] += 1
+        step += 1
+        if n_record > 0 and step % record_every == 0 and step // record_every < n_record:
+            r = step // record_every
+            for i in range(n):
+                record[r, i, R_X] = state[i, S_X]
+                record[r, i, R_Y] = state[i, S_Y]
+                record[r, i, R_HEADING] = state[i, S_HEADING]
+                record[r, i, R_AIRSPEED] = state[i, S_AIRSPEED]
+                record[r, i, R_FLEW] = command[i, C_FLEW]
+        if step_violation:
+            violated = True
+            if stop_on_violation:
+                break
+    return math.sqrt(min_sep2), step, violated
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", parallel=True)
+def _advance_batch(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind: np.ndarray,
+    n_steps: int,
+    params: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    min_separation: np.ndarray,
+    steps_done: np.ndarray,
+    violated: np.ndarray,
+    record: np.ndarray,
+    record_every: int,
+) -> None:
+    for b in prange(state.shape[0]):
+        sep, done, bad = _advance_world(
+            state[b],
+            waypoints[b],
+            wind[b, 0],
+            wind[b, 1],
+            n_steps,
+            params,
+            grad[b],
+            command[b],
+            min_airspeed[b],
+            max_airspeed[b],
+            violation_steps[b],
+            worst_excursion[b],
+            steps_flown[b],
+            los_pairs[b],
+            record[b],
+            record_every,
+        )
+        min_separation[b] = sep
+        steps_done[b] = done
+        violated[b] = bad
+
+
+@dataclass
+class Trace:
+    """What happened during one ``advance`` call, at integration-step resolution.
+
+    Attributes (B worlds, N aircraft):
+        min_airspeed_kt, max_airspeed_kt: (B, N) extreme airspeeds over the steps flown
+            (the airspeed at entry where an aircraft flew no step), kt.
+        violation_steps: (B, N) steps flown with airspeed outside the envelope.
+        worst_excursion_kt: (B, N) largest distance outside the envelope, kt (0 if none).
+        steps_flown: (B, N) integration steps flown by each aircraft.
+        los_pairs: (B, N, N) 1 where the pair was closer than the separation minimum.
+        min_separation_nm: (B,) smallest distance between two aircraft that were flying,
+            nm (``NO_PAIR_SEPARATION_NM`` if fewer than two flew).
+        steps_done: (B,) integration steps simulated (fewer than asked when the world
+            stopped at a violation, or when every aircraft had arrived or left).
+        violated: (B,) an envelope violation or a loss of separation occurred.
+        record: (B, R, N, N_RECORD) the state every ``record_every`` steps (R = 0 when
+            recording is off); fields ``R_*``.
+    """
+
+    min_airspeed_kt: np.ndarray
+    max_airspeed_kt: np.ndarray
+    violation_steps: np.ndarray
+    worst_excursion_kt: np.ndarray
+    steps_flown: np.ndarray
+    los_pairs: np.ndarray
+    min_separation_nm: np.ndarray
+    steps_done: np.ndarray
+    violated: np.ndarray
+    record: np.ndarray
+
+
+class KernelScratch:
+    """Scratch buffers of the kernel, reused across calls of the same batch shape."""
+
+    def __init__(self) -> None:
+        self._shape: tuple[int, int] = (-1, -1)
+        self.grad = np.zeros((0, 0, 0, 2))
+        self.command = np.zeros((0, 0, N_COMMAND))
+
+    def get(self, n_worlds: int, n_aircraft: int) -> tuple[np.ndarray, np.ndarray]:
+        if self._shape != (n_worlds, n_aircraft):
+            self.grad = np.zeros((n_worlds, n_aircraft, n_aircraft, 2))
+            self.command = np.zeros((n_worlds, n_aircraft, N_COMMAND))
+            self._shape = (n_worlds, n_aircraft)
+        return self.grad, self.command
+
+
+_DEFAULT_SCRATCH = KernelScratch()
+
+
+def steps_for(seconds: float, dt_s: float) -> int:
+    """Number of integration steps in ``seconds``; it must be a whole number of steps."""
+    if not math.isfinite(seconds) or seconds < 0:
+        raise ValueError(f"seconds = {seconds!r}: must be a finite number >= 0")
+    n_steps = round(seconds / dt_s)
+    if abs(n_steps * dt_s - seconds) > 1e-6 * max(1.0, seconds):
+        raise ValueError(
+            f"seconds = {seconds!r} is not a whole number of integration steps of {dt_s} s; "
+            f"use a multiple of {dt_s}"
+        )
+    return n_steps
+
+
+#: Parameters that must be > 0 (a zero or negative one divides by zero or flies backwards).
+_POSITIVE_PARAMS = {
+    nf.P_K: "k",
+    nf.P_LENGTH: "length_scale_nm",
+    nf.P_R_WORLD: "workspace radius",
+    nf.P_RADIUS: "aircraft_radius_nm",
+    nf.P_R_SENSE: "sensing_radius_nm",
+    nf.P_X: "f_cutoff",
+    nf.P_DELTA: "arrival_tolerance_nm",
+    nf.P_DT: "dt_s",
+    nf.P_U_CAP: "airspeed_cap_kt",
+    nf.P_P_FLOOR: "p_floor",
+    nf.P_GRAD_FLOOR: "grad_floor",
+}
+
+_POSITIVE_INDEX = np.array(sorted(_POSITIVE_PARAMS))
+
+
+def _check_params(params: np.ndarray) -> None:
+    """The parameter vector's length, dtype and the ranges the compiled code divides by
+    (the compiled code reads it unchecked: a short vector would be read out of bounds)."""
+    if not isinstance(params, np.ndarray) or params.dtype != np.float64 or params.shape != (nf.N_PARAMS,):
+        shape = getattr(params, "shape", None)
+        dtype = getattr(params, "dtype", type(params).__name__)
+        raise ValueError(
+            f"params has shape {shape} and dtype {dtype}; expected ({nf.N_PARAMS},) float64 "
+            "from SimConfig.to_params"
+        )
+    if not (np.isfinite(params).all() and (params[_POSITIVE_INDEX] > 0).all()):  # fast path: every call
+        if not np.isfinite(params).all():
+            raise ValueError(f"params contains NaN or inf at index {np.flatnonzero(~np.isfinite(params)).tolist()}")
+        for index, name in _POSITIVE_PARAMS.items():
+            if not params[index] > 0:
+                raise ValueError(f"params[{index}] ({name}) = {params[index]!r}: must be > 0")
+
+
+def _check_finite_result(state: np.ndarray) -> None:
+    """The kernel never hands back a non-finite state silently: that world's numbers are
+    meaningless (a setting far outside the calibrated range)."""
+    if not np.isfinite(state).all():
+        world, aircraft = np.argwhere(~np.isfinite(state).all(axis=2))[0].tolist()
+        raise FloatingPointError(
+            f"the integration produced NaN or inf (world {world}, aircraft {aircraft}); "
+            "the scenario or gains lie outside the range the NF is calibrated for"
+        )
+
+
+def advance(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind_kt: np.ndarray,
+    seconds: float,
+    params: np.ndarray,
+    *,
+    record_every: int = 0,
+    scratch: KernelScratch | None = None,
+) -> Trace:
+    """Advance B worlds of N aircraft by ``seconds`` under the NF law, in place.
+
+    Args:
+        state: (B, N, N_STATE) float64, modified in place (see ``S_*``; positions nm,
+            headings rad, airspeeds kt, times s).
+        waypoints: (B, N, 2) current waypoint of every aircraft, nm. A waypoint that
+            differs from the stored one is a switch (θ_d is set then).
+        wind_kt: (B, 2) constant wind of each world, kt (east, north).
+        seconds: duration, s; a whole number of integration steps.
+        params: parameter vector from ``SimConfig.to_params``.
+        record_every: record the state every this many steps (0: no recording).
+        scratch: reusable buffers (a module-level one by default; pass your own when
+            calling from several threads).
+
+    Returns:
+        The ``Trace`` of the call.
+
+    Raises:
+        TypeError: if ``state`` is not a numpy array.
+        ValueError: on a wrong shape, dtype or layout, a params vector of the wrong
+            length or with a non-positive step or scale, a duration that is not a whole
+            number of steps, or a NaN/inf in any input.
+        FloatingPointError: if the integration produced a non-finite state.
+    """
+    if not isinstance(state, np.ndarray):
+        raise TypeError(f"state is a {type(state).__name__}; expected a numpy array (B, N, {N_STATE}) float64")
+    if state.ndim != 3 or state.shape[2] != N_STATE or state.dtype != np.float64:
+        raise ValueError(
+            f"state has shape {state.shape} and dtype {state.dtype}; expected (B, N, {N_STATE}) float64"
+        )
+    if not (state.flags.c_contiguous and state.flags.writeable):
+        raise ValueError("state must be a C-contiguous, writeable array: it is advanced in place")
+    n_worlds, n_aircraft, _ = state.shape
+    for name, array in (("waypoints", waypoints), ("wind_kt", wind_kt)):
+        if np.iscomplexobj(array):
+            raise ValueError(f"{name} is complex; expected real numbers")
+    waypoints = np.ascontiguousarray(waypoints, dtype=np.float64)
+    wind_kt = np.ascontiguousarray(wind_kt, dtype=np.float64)
+    if waypoints.shape != (n_worlds, n_aircraft, 2):
+        raise ValueError(
+            f"waypoints has shape {waypoints.shape}; expected (B, N, 2) = ({n_worlds}, {n_aircraft}, 2)"
+        )
+    if wind_kt.shape != (n_worlds, 2):
+        raise ValueError(f"wind_kt has shape {wind_kt.shape}; expected (B, 2) = ({n_worlds}, 2)")
+    _check_params(params)
+    for name, array in (("state", state), ("waypoints", waypoints), ("wind_kt", wind_kt)):
+        if not np.isfinite(array).all():
+            raise ValueError(f"{name} contains NaN or inf; all values must be finite")
+    if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 0:
+        raise ValueError(f"record_every = {record_every!r}: must be an integer >= 0")
+    n_steps = steps_for(seconds, float(params[nf.P_DT]))
+    grad, command = (scratch or _DEFAULT_SCRATCH).get(n_worlds, n_aircraft)
+    n_record = n_steps // record_every + 1 if record_every > 0 else 0
+    trace = Trace(
+        min_airspeed_kt=np.empty((n_worlds, n_aircraft)),
+        max_airspeed_kt=np.empty((n_worlds, n_aircraft)),
+        violation_steps=np.empty((n_worlds, n_aircraft), dtype=np.int64),
+        worst_excursion_kt=np.empty((n_worlds, n_aircraft)),
+        steps_flown=np.empty((n_worlds, n_aircraft), dtype=np.int64),
+        los_pairs=np.empty((n_worlds, n_aircraft, n_aircraft), dtype=np.uint8),
+        min_separation_nm=np.empty(n_worlds),
+        steps_done=np.empty(n_worlds, dtype=np.int64),
+        violated=np.empty(n_worlds, dtype=np.bool_),
+        record=np.zeros((n_worlds, n_record, n_aircraft, N_RECORD)),
+    )
+    if n_worlds == 1:
+        # One world needs no thread pool: waking it costs more than the work itself, and
+        # far more when other processes hold the cores.
+        sep, done, bad = _advance_world(
+            state[0],
+            waypoints[0],
+            wind_kt[0, 0],
+            wind_kt[0, 1],
+            n_steps,
+            params,
+            grad[0],
+            command[0],
+            trace.min_airspeed_kt[0],
+            trace.max_airspeed_kt[0],
+            trace.violation_steps[0],
+            trace.worst_excursion_kt[0],
+            trace.steps_flown[0],
+            trace.los_pairs[0],
+            trace.record[0],
+            max(record_every, 1),
+        )
+        trace.min_separation_nm[0] = sep
+        trace.steps_done[0] = done
+        trace.violated[0] = bad
+        _check_finite_result(state)
+        return trace
+    _advance_batch(
+        state,
+        waypoints,
+        wind_kt,
+        n_steps,
+        params,
+        grad,
+        command,
+        trace.min_airspeed_kt,
+        trace.max_airspeed_kt,
+        trace.violation_steps,
+        trace.worst_excursion_kt,
+        trace.steps_flown,
+        trace.los_pairs,
+        trace.min_separation_nm,
+        trace.steps_done,
+        trace.violated,
+        trace.record,
+        max(record_every, 1),
+    )
+    _check_finite_result(state)
+    return trace
+
+
+def new_state(n_worlds: int, n_aircraft: int) -> np.ndarray:
+    """An empty state: every slot ABSENT."""
+    state = np.zeros((n_worlds, n_aircraft, N_STATE))
+    state[:, :, S_STATUS] = ABSENT
+    return state
+
+
+__all__ = [
+    "ARRIVED",
+    "ABSENT",
+    "FLYING",
+    "LEFT",
+    "Trace",
+    "KernelScratch",
+    "advance",
+    "new_state",
+    "steps_for",
+]
