@@ -58,11 +58,11 @@ def reuse_mpc_runs(study: Study, runs: int, source_dir: Path, target: Path) -> i
 
 
 def run(models: list[str], scenarios: list[str], runs: int, mpc_runs: int, out: Path, reuse_mpc: Path | None,
-        workers: int | None, progress: bool) -> dict[str, Any]:
+        workers: int | None, progress: bool, baselines: Sequence[str] = ("nf", "mpc")) -> dict[str, Any]:
     results: dict[str, Any] = {}
     for scenario in scenarios:
         results[scenario] = {}
-        for policy in ["nf", "mpc", *models]:
+        for policy in [*baselines, *models]:
             n = mpc_runs if policy == "mpc" else runs
             study = Study(policy=policy, scenario=scenario)
             path = out / scenario / f"{label_of(policy)}.jsonl"
@@ -72,6 +72,10 @@ def run(models: list[str], scenarios: list[str], runs: int, mpc_runs: int, out: 
                     print(f"{scenario}: {copied} MPC runs copied from {reuse_mpc}", file=sys.stderr)
             print(f"{scenario}: {policy} x {n}", file=sys.stderr)
             summary = evaluate(study, n, out=path, resume=path.exists(), workers=workers, progress=progress)
+            header = study.header()
+            # What the cards and tables say about the runs: their settings and seeds.
+            summary["study"] = {"wind_sigma_mps": header["wind_sigma_mps"], "max_time_s": header["max_time_s"],
+                                "build": header["build"], "seeds": [0, n - 1]}
             results[scenario][label_of(policy)] = summary
     return results
 
@@ -131,6 +135,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--summary", type=Path, default=Path("out/agents/summary.json"), help="summaries (JSON)")
     parser.add_argument("--table", type=Path, default=Path("out/agents/table.md"), help="the markdown table")
     parser.add_argument("--workers", type=int, help="worker processes (default: all cores)")
+    parser.add_argument("--baselines", default="nf,mpc",
+                        help="comma-separated reference policies flown before the models (empty: none)")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     models = [m for m in args.models.split(",") if m]
@@ -138,7 +144,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not Path(model).is_file():
             parser.error(f"--models: {model} does not exist")
     results = run(models, [s for s in args.scenarios.split(",") if s], args.runs, args.mpc_runs or args.runs,
-                  args.out, args.reuse_mpc, args.workers, not args.no_progress)
+                  args.out, args.reuse_mpc, args.workers, not args.no_progress,
+                  [b for b in args.baselines.split(",") if b])
     args.summary.parent.mkdir(parents=True, exist_ok=True)
     args.summary.write_text(json.dumps(results, indent=2) + "\n")
     text = table(results)

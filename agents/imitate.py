@@ -62,6 +62,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from agents._config import arg, config_dict, parse_config, write_json
+from atc_nf_env.units import WIND_SIGMA_MPS
 
 #: Seeds of the quick checks after each stage: neither training (10 000+) nor evaluation (0..N-1).
 CHECK_SEED = 5_000
@@ -80,8 +81,14 @@ class Args:
     expert_extractions: int = arg(1000, "the MPC's K (the paper: 1000)")
     expert_horizon: int = arg(4, "the MPC's N (the paper: 4)")
     max_minutes: float = arg(150.0, "time limit of a collected episode, min")
+    wind_sigmas: str = arg("", "LO,HI: each episode's wind sigma drawn uniformly in [LO, HI] m/s from its seed "
+                               "(empty: the default 5.17 m/s)")
     # --- behaviour cloning
     net_arch: str = arg("64,64", "hidden layers of the actor (and of PPO's critic)")
+    policy_arch: str = arg("mlp", "mlp (on the K nearest neighbours in order) or deepsets (agents.deepsets: a "
+                                  "permutation-invariant set of neighbours, any N)")
+    n_neighbours: int = arg(4, "K neighbour slots of the observation")
+    deepsets_hidden: int = arg(64, "deepsets: width of the own and neighbour encoders")
     bc_loss: str = arg("nll", "nll (Gaussian log-likelihood) or mse (on the mean action)")
     bc_epochs: int = arg(40, "epochs of the first behaviour cloning")
     batch_size: int = arg(256, "minibatch size")
@@ -234,7 +241,8 @@ def collect_episode(task: dict[str, Any]) -> dict[str, Any]:
     expert = MCMCMPC(extractions=task["extractions"], horizon=task["horizon"])
     recorder = RecordingExpert(expert, task["env"], learner)
     scenario = make_scenario(task["scenario"], seed=task["seed"])
-    result = run_episode(recorder, scenario, seed=task["seed"], max_time_s=task["max_minutes"] * 60.0)
+    result = run_episode(recorder, scenario, seed=task["seed"], max_time_s=task["max_minutes"] * 60.0,
+                         wind_sigma_mps=task.get("wind_sigma", WIND_SIGMA_MPS))
     m = result.metrics
     arrays = recorder.arrays()
     info = expert.episode_info()
@@ -246,6 +254,7 @@ def collect_episode(task: dict[str, Any]) -> dict[str, Any]:
         envelope_violation_fraction=m.envelope_violation_fraction,
         flight_time_min=np.array(m.flight_time_min), expert_acted=learner is None, seed=task["seed"],
         scenario=task["scenario"], fallbacks=info["fallbacks"], wall_s=time.perf_counter() - start,
+        wind_sigma_mps=task.get("wind_sigma", WIND_SIGMA_MPS),
     )
     os.replace(tmp, path)
     return {"path": str(path), "samples": int(arrays["obs"].shape[0]), "success": bool(m.success),
@@ -305,15 +314,49 @@ def make_tasks(args: Args, stage: str, episodes: str, first_seed: int, learner: 
     folder = args.out / "demos" / stage
     expert = {"extractions": args.expert_extractions, "horizon": args.expert_horizon, "max_minutes": args.max_minutes,
               "env": env, "learner": None if learner is None else str(learner)}
+    sigma_range = wind_sigma_range(args.wind_sigmas)
+    if args.wind_sigmas:
+        expert["wind_sigmas"] = list(sigma_range)
     _check_folder(folder, expert)
     tasks = []
     for k, (scenario, count) in enumerate(parse_episodes(episodes)):
         base = first_seed + k * 10_000  # distinct seed blocks per scenario
         for j in range(count):
             seed = base + j
-            tasks.append({**expert, "scenario": scenario, "seed": seed,
-                          "path": str(folder / scenario / f"seed_{seed}.npz")})
+            task = {**expert, "scenario": scenario, "seed": seed, "path": str(folder / scenario / f"seed_{seed}.npz")}
+            if args.wind_sigmas:
+                task["wind_sigma"] = episode_wind_sigma(seed, sigma_range)
+            tasks.append(task)
     return tasks
+
+
+def wind_sigma_range(text: str) -> tuple[float, float]:
+    """``"0,10"`` -> (0.0, 10.0); empty -> the default sigma twice."""
+    if not text.strip():
+        return (WIND_SIGMA_MPS, WIND_SIGMA_MPS)
+    try:
+        low, high = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--wind-sigmas {text!r}: write LO,HI in m/s, e.g. 0,10") from None
+    if not (0.0 <= low <= high and np.isfinite(high)):
+        raise ValueError(f"--wind-sigmas {text!r}: need 0 <= LO <= HI, finite")
+    return (low, high)
+
+
+def episode_wind_sigma(seed: int, sigma_range: tuple[float, float]) -> float:
+    """The wind sigma of training episode ``seed``, m/s: uniform in the range, drawn from
+    a generator of its own (the episode's wind direction still comes from ``seed``)."""
+    low, high = sigma_range
+    return float(np.random.default_rng([seed, 7]).uniform(low, high))
+
+
+def operating_range(args: Args) -> dict[str, list[float]]:
+    """The numbers of aircraft and the wind sigmas the training episodes covered."""
+    from atc_nf_env.scenarios import make_scenario
+
+    counts = [make_scenario(name, seed=0).n_aircraft for name, _ in parse_episodes(args.episodes)]
+    low, high = wind_sigma_range(args.wind_sigmas)
+    return {"n_aircraft": [min(counts), max(counts)], "wind_sigma_mps": [low, high]}
 
 
 def _check_folder(folder: Path, expert: dict[str, Any]) -> None:
@@ -394,7 +437,8 @@ def load_dataset(folders: list[Path], canonical_chirality: bool, arrived_only: b
 # ------------------------------------------------------------------ 3. behaviour cloning
 
 
-def new_model(net_arch: list[int], log_std_init: float, seed: int, n_neighbours: int = 4) -> Any:
+def new_model(net_arch: list[int], log_std_init: float, seed: int, n_neighbours: int = 4, policy_arch: str = "mlp",
+              deepsets_hidden: int = 64) -> Any:
     """A PPO model whose ``ActorCriticPolicy`` receives the cloned actor (its env only gives
     the spaces: one aircraft's observation and action)."""
     from stable_baselines3 import PPO
@@ -402,14 +446,22 @@ def new_model(net_arch: list[int], log_std_init: float, seed: int, n_neighbours:
     from atc_nf_env.envs.vector import make_sb3_vec_env
 
     venv = make_sb3_vec_env(1, mode="shared", scenario="converging-4", n_neighbours=n_neighbours)
-    return PPO("MlpPolicy", venv, policy_kwargs={"net_arch": {"pi": net_arch, "vf": net_arch},
-                                                 "log_std_init": log_std_init},
-               seed=seed, device="cpu")
+    if policy_arch == "deepsets":
+        from agents.deepsets import policy_kwargs
+
+        kwargs = policy_kwargs(deepsets_hidden, net_arch, log_std_init)
+    elif policy_arch == "mlp":
+        kwargs = {"net_arch": {"pi": net_arch, "vf": net_arch}, "log_std_init": log_std_init}
+    else:
+        raise ValueError(f"--policy-arch {policy_arch!r}: allowed: mlp, deepsets")
+    return PPO("MlpPolicy", venv, policy_kwargs=kwargs, seed=seed, device="cpu")
 
 
 def actor_parameters(policy: Any) -> list[Any]:
-    """The parameters behaviour cloning trains: the actor's MLP, its output layer, the log std."""
-    return [*policy.mlp_extractor.policy_net.parameters(), *policy.action_net.parameters(), policy.log_std]
+    """The parameters behaviour cloning trains: the features extractor (when it has
+    weights, as the deep-sets one does), the actor's MLP, its output layer, the log std."""
+    return [*policy.pi_features_extractor.parameters(), *policy.mlp_extractor.policy_net.parameters(), *policy.action_net.parameters(),
+            policy.log_std]
 
 
 def bc_losses(policy: Any, obs: Any, act: Any, loss: str) -> tuple[Any, Any]:
@@ -526,9 +578,10 @@ def save_stage(model: Any, path: Path, args: Args, command: str, stage: str, ext
     from agents.train import save_model
     from atc_nf_env.envs import EnvConfig
 
-    meta = {"algo": "ppo", "mode": "shared", "env": env_meta(EnvConfig()),
+    meta = {"algo": "ppo", "mode": "shared", "env": env_meta(EnvConfig(n_neighbours=args.n_neighbours)),
+            "operating_range": operating_range(args),
             "training": {"script": "atc-nf imitate", "command": command, "stage": stage, "seed": args.seed,
-                         **extra}}
+                         "policy_arch": args.policy_arch, **extra}}
     return save_model(model, path, meta)
 
 
@@ -560,6 +613,9 @@ def run(args: Args, command: str) -> dict[str, Any]:
     if args.bc_loss not in ("nll", "mse"):
         raise ValueError(f"--bc-loss {args.bc_loss!r}: allowed: nll, mse")
     _check_expert(args)
+    wind_sigma_range(args.wind_sigmas)
+    if args.policy_arch not in ("mlp", "deepsets"):
+        raise ValueError(f"--policy-arch {args.policy_arch!r}: allowed: mlp, deepsets")
     torch.set_num_threads(max(1, args.torch_threads))
     args.out.mkdir(parents=True, exist_ok=True)
     log_path = args.out / "log.json"
@@ -567,7 +623,7 @@ def run(args: Args, command: str) -> dict[str, Any]:
     # A resumed run keeps what the earlier runs recorded about the stages it reuses.
     previous = json.loads(log_path.read_text()).get("stages", {}) if args.resume and log_path.exists() else {}
     writer = SummaryWriter(str(args.out / "tb"))
-    env = env_meta(EnvConfig())
+    env = env_meta(EnvConfig(n_neighbours=args.n_neighbours))
     scenarios = [name for name, _ in parse_episodes(args.episodes)]
     arch = net_arch_of(args.net_arch)
     started = time.perf_counter()
@@ -602,7 +658,7 @@ def run(args: Args, command: str) -> dict[str, Any]:
     else:
         t0 = time.perf_counter()
         data = load_dataset(folders, args.canonical_chirality, args.arrived_only, env["n_neighbours"])
-        model = new_model(arch, args.log_std_init, args.seed)
+        model = new_model(arch, args.log_std_init, args.seed, args.n_neighbours, args.policy_arch, args.deepsets_hidden)
         history = behaviour_cloning(model, data, epochs=args.bc_epochs, batch_size=args.batch_size,
                                     learning_rate=args.learning_rate, val_fraction=args.val_fraction,
                                     loss=args.bc_loss, seed=args.seed, writer=writer, tag="bc",

@@ -32,6 +32,7 @@ parameter-shared PPO model on the default environment settings.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any, Callable
 
@@ -174,8 +175,15 @@ def numpy_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
         from stable_baselines3.sac.policies import SACPolicy
 
         policy = model.policy
+        features: Callable[[np.ndarray], np.ndarray] | None = None
         if isinstance(policy, ActorCriticPolicy):
-            if not isinstance(policy.features_extractor, FlattenExtractor) or policy.squash_output:
+            from agents.deepsets import NeighbourSetExtractor, numpy_deepsets_features
+
+            if isinstance(policy.features_extractor, NeighbourSetExtractor) and policy.share_features_extractor:
+                features = numpy_deepsets_features(policy.features_extractor)
+            elif not isinstance(policy.features_extractor, FlattenExtractor):
+                return None
+            if policy.squash_output:
                 return None
             from stable_baselines3.common.distributions import DiagGaussianDistribution
 
@@ -201,6 +209,8 @@ def numpy_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
     def forward(obs: np.ndarray) -> np.ndarray:
         # float32 like torch; in-place operations keep the per-decision cost at a few µs.
         x = np.asarray(obs, dtype=np.float32)
+        if features is not None:
+            x = features(x)
         for weight, bias, act in layers:
             x = x @ weight
             x += bias
@@ -232,6 +242,16 @@ def time_limit_s(max_episode_minutes: float) -> float:
 
 
 
+#: What SB3AgentPolicy does outside its model's operating range.
+OUTSIDE_RANGE = ("warn", "refuse", "ignore")
+#: Models that have warned in this process (one warning per model).
+_WARNED_OUTSIDE: set[str] = set()
+
+
+class OutsideOperatingRangeWarning(UserWarning):
+    """A model flies traffic or wind outside the range it was trained on."""
+
+
 class SB3AgentPolicy:
     """A model saved by ``atc-nf train`` / ``atc-nf imitate`` as a waypoint policy.
 
@@ -239,13 +259,23 @@ class SB3AgentPolicy:
         path: the model's .zip.
         fast: use the NumPy forward pass where the architecture allows (see the module
             docstring); False always calls SB3's ``predict(deterministic=True)``.
+        outside_range: "warn" (once per model and process), "refuse" (ValueError) or
+            "ignore", when an episode's number of aircraft or wind sigma lies outside the
+            model's operating range (``agents.cards.operating_range``: saved with the
+            model, or derived from its training command).
 
     Units: waypoints in nm, like every policy of ``atc_nf_env.policy``.
     """
 
-    def __init__(self, path: str | Path, fast: bool = True) -> None:
+    def __init__(self, path: str | Path, fast: bool = True, outside_range: str = "warn") -> None:
+        if outside_range not in OUTSIDE_RANGE:
+            raise ValueError(f"outside_range = {outside_range!r}: allowed: {', '.join(OUTSIDE_RANGE)}")
         self.path = Path(path)
+        self.outside_range = outside_range
         self.model, self.meta = load_model(self.path)
+        from agents.cards import operating_range
+
+        self.operating_range = operating_range(self.meta)
         self.name = self.path.stem
         env = self.meta["env"]
         if env.get("expose_wind"):
@@ -274,6 +304,32 @@ class SB3AgentPolicy:
         self._forward = numpy_forward(self.model) if fast else None
         self._spec: ObservationSpec | None = None
         self._warm = False
+
+    def check_operating_conditions(self, n_aircraft: int, wind_sigma_mps: float | None) -> None:
+        """Warn once per model and process (``outside_range="warn"``), or raise ValueError
+        (``"refuse"``), when ``n_aircraft`` or the wind's sigma (m/s; None: a fixed wind,
+        not checked) lies outside the range the model was trained on (its card's
+        operating range). ``run_episode`` calls this before ``reset``."""
+        rng = self.operating_range
+        if rng is None or self.outside_range == "ignore":
+            return
+        problems = []
+        n_lo, n_hi = rng["n_aircraft"]
+        if not n_lo <= n_aircraft <= n_hi:
+            problems.append(f"{n_aircraft} aircraft (trained on {n_lo:g}..{n_hi:g})")
+        s_lo, s_hi = rng["wind_sigma_mps"]
+        if wind_sigma_mps is not None and not s_lo - 1e-9 <= wind_sigma_mps <= s_hi + 1e-9:
+            problems.append(f"wind sigma {wind_sigma_mps:g} m/s (trained on {s_lo:g}..{s_hi:g})")
+        if not problems:
+            return
+        message = (f"{self.path.name} flies outside its operating range: {' and '.join(problems)}; its card "
+                   f"({self.path.with_suffix('.md').name}) gives no result there that it was trained for")
+        if self.outside_range == "refuse":
+            raise ValueError(message + "; pass outside_range='warn' or 'ignore' to fly it anyway")
+        key = str(self.path.resolve())
+        if key not in _WARNED_OUTSIDE:
+            _WARNED_OUTSIDE.add(key)
+            warnings.warn(message, OutsideOperatingRangeWarning, stacklevel=3)
 
     # -- Policy interface -------------------------------------------------------------
     def reset(self, scenario: Scenario, config: SimConfig, seed: int | None = None) -> None:
@@ -328,6 +384,6 @@ def is_model_path(spec: str) -> bool:
     return isinstance(spec, str) and spec.lower().endswith(".zip")
 
 
-__all__ = ["META_KEY", "SB3AgentPolicy", "default_meta", "env_meta", "is_model_path", "load_model", "numpy_forward",
+__all__ = ["META_KEY", "OutsideOperatingRangeWarning", "SB3AgentPolicy", "default_meta", "env_meta", "is_model_path", "load_model", "numpy_forward",
            "read_meta"]
 

@@ -83,6 +83,7 @@ class Args:
     # --- bookkeeping
     out: Path = arg(Path("out/train"), "output folder (model.zip, checkpoints/, tb/, config.json)")
     checkpoint_every: int = arg(50_000, "save a checkpoint every this many timesteps (0: never)")
+    max_wall_minutes: float = arg(0.0, "stop learning (and save the model) after this many minutes of wall time (0: never)")
     eval_runs: int = arg(0, "after training, evaluate on seeds 0..N-1 with atc-nf evaluate's evaluator")
     torch_threads: int = arg(2, "torch CPU threads")
     progress: bool = arg(True, "show a progress bar")
@@ -143,6 +144,8 @@ def check_args(args: Args) -> None:
         raise ValueError(f"--init-from {args.init_from}: no such file")
     if args.total_timesteps < 1 or args.num_envs < 1:
         raise ValueError("--total-timesteps and --num-envs must be >= 1")
+    if not args.max_wall_minutes >= 0:
+        raise ValueError(f"--max-wall-minutes {args.max_wall_minutes}: must be >= 0 (0: no limit)")
 
 
 def net_arch_of(text: str) -> list[int]:
@@ -193,11 +196,13 @@ def make_model(args: Args, venv: Any) -> Any:
 def model_meta(args: Args, venv: Any, command: str) -> dict[str, Any]:
     """What ``SB3AgentPolicy`` needs to fly the model, and how it was trained."""
     from agents.policy import env_meta
-    from atc_nf_env.envs import EnvConfig
+    from atc_nf_env.envs import EnvConfig, ScenarioSource
 
     cfg = EnvConfig.from_kwargs(env_kwargs(args), "atc-nf train")
     slots = venv.action_space.shape[0] if args.mode == "centralized" else None
-    return {"algo": args.algo, "mode": args.mode, "env": env_meta(cfg, slots),
+    n = ScenarioSource(args.scenario).n_aircraft
+    operating = {"n_aircraft": [n, n], "wind_sigma_mps": [args.wind_sigma, args.wind_sigma]}
+    return {"algo": args.algo, "mode": args.mode, "env": env_meta(cfg, slots), "operating_range": operating,
             "training": {"script": "atc-nf train", "command": command, "scenario": args.scenario,
                          "seed": args.seed, "total_timesteps": args.total_timesteps,
                          "init_from": None if args.init_from is None else str(args.init_from)}}
@@ -205,8 +210,10 @@ def model_meta(args: Args, venv: Any, command: str) -> dict[str, Any]:
 
 def save_model(model: Any, path: Path, meta: dict[str, Any]) -> Path:
     """Save with the metadata (``agents.policy.META_KEY``) inside the zip."""
+    from agents.cards import provenance
     from agents.policy import META_KEY
 
+    meta = {**meta, "provenance": provenance()}
     setattr(model, META_KEY, meta)
     path.parent.mkdir(parents=True, exist_ok=True)
     model.save(str(path), include=[META_KEY])
@@ -214,6 +221,13 @@ def save_model(model: Any, path: Path, meta: dict[str, Any]) -> Path:
 
 
 # ------------------------------------------------------------------ 3. callbacks
+
+CURVE_HEADER = "timesteps,wall_s,episodes,mean_return,mean_length,success_rate"
+
+
+def _mean(values: list[Any]) -> float | None:
+    return float(sum(values) / len(values)) if values else None
+
 
 
 def make_callbacks(args: Args, meta: dict[str, Any]) -> list[Any]:
@@ -254,7 +268,31 @@ def make_callbacks(args: Args, meta: dict[str, Any]) -> list[Any]:
         def _on_step(self) -> bool:
             return True
 
-    callbacks = [progress_callback(args.total_timesteps, args.progress), Checkpoints()]
+    class LearningCurve(BaseCallback):
+        """One row of ``OUT/curve.csv`` per rollout: timesteps, wall time, and the mean
+        return, length (decisions) and success of the last 100 episodes (with parameter
+        sharing one episode is one aircraft slot); stops learning past --max-wall-minutes."""
+
+        def _on_training_start(self) -> None:
+            self.start = time.perf_counter()
+            self.path = args.out / "curve.csv"
+            self.path.write_text(CURVE_HEADER + "\n")
+            self.stop = False
+
+        def _on_rollout_end(self) -> None:
+            episodes = list(self.model.ep_info_buffer)
+            successes = list(self.model.ep_success_buffer)
+            wall = time.perf_counter() - self.start
+            row = [self.model.num_timesteps, round(wall), len(episodes),
+                   _mean([e["r"] for e in episodes]), _mean([e["l"] for e in episodes]), _mean(successes)]
+            with self.path.open("a") as file:
+                file.write(",".join("" if v is None else (f"{v:.4f}" if isinstance(v, float) else str(v)) for v in row) + "\n")
+            self.stop = bool(args.max_wall_minutes) and wall >= 60.0 * args.max_wall_minutes
+
+        def _on_step(self) -> bool:
+            return not self.stop
+
+    callbacks = [progress_callback(args.total_timesteps, args.progress), Checkpoints(), LearningCurve()]
     if args.value_warmup_updates and args.algo == "ppo":
         callbacks.append(ValueWarmup())
     return callbacks
@@ -286,6 +324,7 @@ def train(args: Args, command: str | None = None) -> dict[str, Any]:
                 tb_log_name=f"{args.algo}_{args.mode}", progress_bar=False)
     wall = time.perf_counter() - start
     meta["training"]["wall_s"] = round(wall, 1)
+    meta["training"]["timesteps_done"] = int(model.num_timesteps)
     path = save_model(model, args.out / "model.zip", meta)
     venv.close()
 

@@ -130,6 +130,11 @@ def run_episode(
     limit_steps = whole_steps("max_time_s", max_time_s, config.dt_s)
     wind = episode_wind_kt(seed, wind_sigma_mps) if wind_kt is None else wind_kt  # Simulation checks it
     sim = Simulation(scenario, config=config, wind_kt=wind, record_every=record_every)
+    # A policy with a stated operating range (trained agents) checks the traffic and the
+    # wind's sigma here: reset() sees the scenario but not the sigma.
+    check_conditions = getattr(policy, "check_operating_conditions", None)
+    if check_conditions is not None:
+        check_conditions(scenario.n_aircraft, wind_sigma_mps if wind_kt is None else None)
     policy.reset(scenario, config, seed)
     decision_s: list[float] = []
     waypoints: list[np.ndarray] = []

@@ -508,10 +508,16 @@ def _sb3_adapter_class() -> type:
                 owners = np.repeat(np.arange(b), m)
             if done.any():
                 ended = np.flatnonzero(dones)
+                # SB3's convention (ep_success_buffer, rollout/success_rate): the world's
+                # aircraft all arrived (centralized), this slot's aircraft arrived (shared;
+                # a padding slot counts as arrived).
+                home = worlds.state[:, :, S_STATUS] != FLYING
+                home &= worlds.state[:, :, S_STATUS] != LEFT
                 for k in ended:
                     infos[k]["terminal_observation"] = obs[k].copy()
                     infos[k]["TimeLimit.truncated"] = bool(truncated[owners[k]])
                     infos[k]["episode_seed"] = int(worlds.episode_seeds[owners[k]])
+                    infos[k]["is_success"] = bool(home[k].all() if self.mode == "centralized" else home[owners[k], k % m])
                 index = np.flatnonzero(done)
                 worlds.reset_worlds(index)
                 fresh = self._obs(worlds.observe())
