@@ -100,6 +100,27 @@ by the kernel with the saddle's sub-steps; the "paper" rows by the kernel before
 
 No decision of the "homing" runs above needed a wider search round.
 
+Lazy search
+-----------
+The chain needs a candidate's cost only to decide whether to move to it, so by default
+(``search="lazy"``) a candidate is flown only as far as that decision needs. Its cost
+is bounded from below by what the rest of the horizon can still change: ground speed
+at most the envelope's top airspeed plus the predicted wind, the time term known up to
+the arrival (``_LazyCandidates._bound``). While the chain sits on a feasible state, a
+candidate whose bound already gives ρ ≤ u (u its pre-drawn uniform) is rejected
+whatever its cost, as an infeasible one would be; the others are flown a period
+further, in one batch, and looked at again; a state the chain moves to is flown to the
+end. On an infeasible state the chain moves to every candidate, and each is flown to
+the end. Every verdict is the exhaustive chain's, taken with the same arithmetic, and
+a round without a feasible candidate has flown every candidate (the wider rounds and
+the fallback see exactly the exhaustive search's survivals), so the applied waypoints,
+the chain's moves, the rounds and the random stream are the same bit for bit
+(``tests/test_mpc_search.py``). When Θ_0 is feasible, its weight π/g makes the chain
+reject nearly every candidate on the bound alone, and Θ_0 is the only candidate flown.
+The price: the feasible fraction of the candidates is known only where every candidate
+was flown; ``search="exhaustive"`` flies all K over the whole horizon and reports it
+for every decision (``DecisionRecord.feasible_fraction`` is None otherwise).
+
 Prediction wind and fallback
 ----------------------------
 The controller never sees the true wind. Its prediction wind model is configurable:
@@ -112,8 +133,8 @@ corrects the estimate).
 Fallback: when no candidate is feasible, the controller applies the candidate that
 stayed feasible longest (the most integration steps, or sampling instants, before its
 first violation; ties broken by the distance cost) and counts the decision as a
-fallback. ``episode_info()`` reports the fallbacks and the feasible fraction of every
-decision (of the first round).
+fallback. ``episode_info()`` reports the fallbacks and the feasible fraction of the
+first round of every decision that measured it (all under ``search="exhaustive"``).
 """
 
 from __future__ import annotations
@@ -125,7 +146,7 @@ from typing import Any
 
 import numpy as np
 
-from atc_nf_env import kernel
+from atc_nf_env import kernel, nf
 from atc_nf_env.config import SimConfig
 from atc_nf_env.kernel import (
     ABSENT,
@@ -147,6 +168,7 @@ WIND_MODELS = ("none", "sampled", "estimated")
 PROPOSALS = ("homing", "paper")
 CONSTRAINT_CHECKS = ("every-step", "sampling-instants")
 ACCEPTANCES = ("standard", "table-i")
+SEARCHES = ("lazy", "exhaustive")
 
 #: The default margin inside the airspeed envelope that "homing" predicts with, kt.
 HOMING_ENVELOPE_MARGIN_KT = 4.0
@@ -187,6 +209,10 @@ class MPCSettings:
             envelope (at most a quarter of its width), against the error of the
             predicted wind, kt; None: 0 under "paper", ``HOMING_ENVELOPE_MARGIN_KT``
             under "homing".
+        search: "lazy" (default) simulates a candidate only as far as the chain needs
+            to decide on it, or "exhaustive" simulates every candidate over the whole
+            horizon. Both pick the same candidate from the same draws; only
+            "exhaustive" knows every decision's feasible fraction (see "Lazy search").
     """
 
     period_s: float = DECISION_PERIOD_S
@@ -206,6 +232,7 @@ class MPCSettings:
     search_rounds: int = 2
     home_distance_nm: float = 130.0
     envelope_margin_kt: float | None = None
+    search: str = "lazy"
 
     def __post_init__(self) -> None:
         if not isinstance(self.extractions, (int, np.integer)) or self.extractions < 1:
@@ -235,6 +262,7 @@ class MPCSettings:
             ("constraint_check", CONSTRAINT_CHECKS),
             ("wind_model", WIND_MODELS),
             ("proposal", PROPOSALS),
+            ("search", SEARCHES),
         ):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: allowed: {', '.join(allowed)}")
@@ -247,11 +275,12 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
 
 @dataclass
 class DecisionRecord:
-    """What one decision saw: the feasible fraction of the K candidates, and whether
-    the fallback was taken."""
+    """What one decision saw: the feasible fraction of the K candidates (None where the
+    lazy search did not fly every candidate to the end), and whether the fallback was
+    taken."""
 
     time_s: float
-    feasible_fraction: float
+    feasible_fraction: float | None
     fallback: bool
     cost_nm: float
     chain_acceptance: float
@@ -333,6 +362,8 @@ class MCMCMPC:
         self._wind_estimate_kt = np.zeros(2)
         self._predicted_positions: np.ndarray | None = None
         self._predicted_time_s = -1.0
+        #: Candidate-periods flown by the search (K · N per round for the exhaustive one).
+        self.search_world_periods = 0
 
     @property
     def envelope_margin_kt(self) -> float:
@@ -358,6 +389,7 @@ class MCMCMPC:
         self._params = self._config.to_params(scenario.workspace_radius_nm, stop_on_violation=stop)
         self._workspace_radius_nm = scenario.workspace_radius_nm
         self.decisions = []
+        self.search_world_periods = 0
         self._wind_estimate_kt = np.zeros(2)
         self._predicted_positions = None
         self._predicted_time_s = -1.0
@@ -371,22 +403,40 @@ class MCMCMPC:
         flying = view.flying
         rounds = 1 + (s.search_rounds if s.proposal == "homing" else 0)
         tried: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        first_fraction = 0.0
+        first_fraction: float | None = None
+        chain: tuple[int, int] | None = None
         for round_index in range(rounds):
             proposals, log_g = self._propose(view, round_index)
-            costs, survived, after_first = self._simulate(view.state, proposals)
-            feasible = np.isfinite(costs)
-            if round_index == 0:
+            if s.search == "exhaustive":
+                costs, survived, after_first = self._simulate(view.state, proposals)
+                self.search_world_periods += s.extractions * s.horizon
+                feasible = np.isfinite(costs)
+                any_feasible = bool(feasible.any())
+            else:
+                candidates = _LazyCandidates(self, view.state, proposals, self._prediction_wind())
+                # The chain's uniforms are the generator's next draws if this round has a
+                # feasible candidate (no further round is drawn then): read them ahead.
+                ahead = np.random.Generator(type(self._rng.bit_generator)())
+                ahead.bit_generator.state = self._rng.bit_generator.state
+                best, accepted, any_feasible = _lazy_chain(
+                    candidates, log_g, ahead.random(s.extractions), s.cost_exponent, s.acceptance
+                )
+                chain = (best, accepted)
+                self.search_world_periods += candidates.world_periods
+                costs, survived, after_first = candidates.costs, candidates.survived, candidates.after_first
+                feasible = candidates.done & np.isfinite(costs)
+            if round_index == 0 and (s.search == "exhaustive" or candidates.done.all()):
                 first_fraction = float(feasible.mean())
             tried.append((proposals, survived, after_first))
-            if feasible.any():
+            if any_feasible:
                 break
         uniforms = self._rng.random(s.extractions)
         breach_predicted = False
-        if feasible.any():
-            best, accepted, _ = metropolis_hastings_best(
-                costs, log_g, uniforms, s.cost_exponent, s.acceptance
-            )
+        if any_feasible:
+            if chain is None:
+                best, accepted, _ = metropolis_hastings_best(costs, log_g, uniforms, s.cost_exponent, s.acceptance)
+            else:
+                best, accepted = chain
             fallback = False
             applied = proposals[best]
             applied_after_first = after_first[best]
@@ -422,7 +472,7 @@ class MCMCMPC:
 
     def episode_info(self) -> dict[str, Any]:
         """Diagnostics of the episode so far (for reports and the evaluator)."""
-        fractions = [d.feasible_fraction for d in self.decisions]
+        fractions = [d.feasible_fraction for d in self.decisions if d.feasible_fraction is not None]
         return {
             "decisions": len(self.decisions),
             "fallbacks": int(sum(d.fallback for d in self.decisions)),
@@ -432,6 +482,7 @@ class MCMCMPC:
             "feasible_fraction": {
                 "min": float(min(fractions)) if fractions else None,
                 "mean": float(np.mean(fractions)) if fractions else None,
+                "decisions": len(fractions),
             },
             "chain_acceptance_mean": float(np.mean([d.chain_acceptance for d in self.decisions]))
             if self.decisions
@@ -540,27 +591,11 @@ class MCMCMPC:
         feasible = np.ones(s.extractions, dtype=bool)
         survived = np.zeros(s.extractions, dtype=np.int64)
         after_first = None
-        every_step = s.constraint_check == "every-step"
-        sep2 = self._config.separation_min_nm**2
         for period in range(s.horizon):
             before = states[:, :, S_X : S_Y + 1].copy()
             trace = kernel.advance(states, waypoints, wind, s.period_s, self._params, scratch=self._scratch)
-            if every_step:
-                survived += np.where(feasible, trace.steps_done, 0)
-                newly_bad = trace.violated & feasible
-            else:
-                flying = states[:, :, S_STATUS] == FLYING
-                airspeed = states[:, :, S_AIRSPEED]
-                outside = flying & (
-                    (airspeed < self._config.airspeed_min_kt) | (airspeed > self._config.airspeed_max_kt)
-                )
-                pos = states[:, :, S_X : S_Y + 1]
-                diff = pos[:, :, None, :] - pos[:, None, :, :]
-                close = (diff**2).sum(-1) < sep2
-                pair_flying = flying[:, :, None] & flying[:, None, :]
-                np.einsum("kii->ki", close)[:] = False
-                newly_bad = feasible & (outside.any(axis=1) | (close & pair_flying).any(axis=(1, 2)))
-                survived += feasible & ~newly_bad
+            newly_bad, flown = self._period_verdict(states, trace, feasible)
+            survived += flown
             feasible &= ~newly_bad
             # A world that violated is infeasible already: stop simulating it.
             states[newly_bad, :, S_STATUS] = np.where(
@@ -569,11 +604,35 @@ class MCMCMPC:
             if after_first is None:
                 after_first = states[:, :, S_X : S_Y + 1].copy()
             waypoints = waypoints + (states[:, :, S_X : S_Y + 1] - before)
-        cost = self._remaining_distance(states)
-        if s.proposal == "homing":
-            cost = cost + self._time_to_arrival_nm(base_state, states)
+        cost = self._cost(base_state, states)
         costs = np.where(feasible, cost, np.inf)
         return costs, survived, after_first
+
+    def _period_verdict(
+        self, states: np.ndarray, trace: kernel.Trace, feasible: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """After one period of the horizon: the worlds (still feasible) that violated in
+        it, and what each world adds to its survival (steps, or sampling instants)."""
+        assert self._config is not None
+        if self.settings.constraint_check == "every-step":
+            return trace.violated & feasible, np.where(feasible, trace.steps_done, 0)
+        flying = states[:, :, S_STATUS] == FLYING
+        airspeed = states[:, :, S_AIRSPEED]
+        outside = flying & ((airspeed < self._config.airspeed_min_kt) | (airspeed > self._config.airspeed_max_kt))
+        pos = states[:, :, S_X : S_Y + 1]
+        diff = pos[:, :, None, :] - pos[:, None, :, :]
+        close = (diff**2).sum(-1) < self._config.separation_min_nm**2
+        pair_flying = flying[:, :, None] & flying[:, None, :]
+        np.einsum("kii->ki", close)[:] = False
+        newly_bad = feasible & (outside.any(axis=1) | (close & pair_flying).any(axis=(1, 2)))
+        return newly_bad, feasible & ~newly_bad
+
+    def _cost(self, base_state: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """The cost of candidates flown to the horizon's end (feasible or not), nm."""
+        cost = self._remaining_distance(states)
+        if self.settings.proposal == "homing":
+            cost = cost + self._time_to_arrival_nm(base_state, states)
+        return cost
 
     @staticmethod
     def _remaining_distance(states: np.ndarray) -> np.ndarray:
@@ -610,3 +669,213 @@ class MCMCMPC:
         self._wind_estimate_kt = self._wind_estimate_kt + error_nm.mean(axis=0) / (
             self.settings.period_s / SECONDS_PER_HOUR
         )
+
+
+class _LazyCandidates:
+    """The K candidates of one round, each simulated only as far as it is asked to be.
+
+    Every candidate keeps its own state, waypoints and wind; ``advance`` flies chosen
+    candidates one more period of the horizon with exactly the per-period steps of
+    ``MCMCMPC._simulate`` (a world flies bit for bit the same alone or in any batch of
+    the kernel), so a candidate flown to the horizon's end has the same cost, survival
+    and first-period positions as in the exhaustive search. Before that, ``lower_bound``
+    bounds its cost from below.
+    """
+
+    def __init__(self, mpc: MCMCMPC, base_state: np.ndarray, proposals: np.ndarray, wind_kt: np.ndarray) -> None:
+        s = mpc.settings
+        k, n = proposals.shape[0], base_state.shape[0]
+        self.mpc = mpc
+        self.base_state = base_state
+        self.states = np.repeat(base_state[None], k, axis=0)
+        waypoints = proposals.copy()
+        flying0 = base_state[:, S_STATUS] == FLYING
+        waypoints[:, ~flying0] = base_state[None, ~flying0, kernel.S_WP_X : kernel.S_WP_Y + 1]
+        self.waypoints = waypoints
+        self.wind_kt = wind_kt
+        self.depth = np.zeros(k, dtype=np.int64)  # periods flown
+        self.feasible = np.ones(k, dtype=bool)
+        self.survived = np.zeros(k, dtype=np.int64)
+        self.after_first = np.zeros((k, n, 2))
+        self.costs = np.full(k, np.nan)  # known once done
+        self.done = np.zeros(k, dtype=bool)  # flown to the horizon's end, or infeasible
+        self.lower = np.zeros(k)  # lower bound of the cost of a candidate not done, nm
+        self.world_periods = 0  # candidate-periods flown (diagnostics of the search)
+        config = mpc._config
+        params = mpc._params
+        assert config is not None and params is not None
+        if s.constraint_check == "every-step":
+            # A feasible candidate flies every step inside the prediction's envelope.
+            airspeed_bound = max(abs(config.airspeed_min_kt), abs(config.airspeed_max_kt))
+        else:
+            airspeed_bound = float(params[nf.P_U_CAP])  # guard 2 of the kernel
+        self._speed_bound_kt = airspeed_bound + np.hypot(wind_kt[:, 0], wind_kt[:, 1])
+        self._time_cost_kt = AIRSPEED_NOMINAL_KT if s.proposal == "homing" else 0.0
+        self._arrival_nm = float(params[nf.P_DELTA])
+        self._dt_h = float(params[nf.P_DT]) / SECONDS_PER_HOUR
+        self._bound(np.arange(k))
+
+    def advance(self, rows: np.ndarray) -> None:
+        """Fly the candidates ``rows`` (none of them done) one more period."""
+        mpc, s = self.mpc, self.mpc.settings
+        assert mpc._params is not None and mpc._config is not None
+        states = self.states[rows]
+        waypoints = self.waypoints[rows]
+        feasible = self.feasible[rows]
+        before = states[:, :, S_X : S_Y + 1].copy()
+        trace = kernel.advance(states, waypoints, self.wind_kt[rows], s.period_s, mpc._params, scratch=mpc._scratch)
+        newly_bad, flown = mpc._period_verdict(states, trace, feasible)
+        self.survived[rows] += flown
+        feasible &= ~newly_bad
+        states[newly_bad, :, S_STATUS] = np.where(
+            states[newly_bad, :, S_STATUS] == FLYING, ABSENT, states[newly_bad, :, S_STATUS]
+        )
+        first = self.depth[rows] == 0
+        self.after_first[rows[first]] = states[first, :, S_X : S_Y + 1]
+        self.states[rows] = states
+        self.waypoints[rows] = waypoints + (states[:, :, S_X : S_Y + 1] - before)
+        self.feasible[rows] = feasible
+        self.depth[rows] += 1
+        self.world_periods += rows.size
+        finished = ~feasible | (self.depth[rows] == s.horizon)
+        if finished.any():
+            ended = rows[finished]
+            cost = mpc._cost(self.base_state, self.states[ended])
+            self.costs[ended] = np.where(self.feasible[ended], cost, np.inf)
+            self.done[ended] = True
+        if (~finished).any():
+            self._bound(rows[~finished])
+
+    def complete(self, rows: np.ndarray) -> None:
+        """Fly the candidates ``rows`` to the horizon's end (or their first violation)."""
+        rows = rows[~self.done[rows]]
+        while rows.size:
+            self.advance(rows)
+            rows = rows[~self.done[rows]]
+
+    def _bound(self, rows: np.ndarray) -> None:
+        """``lower`` of ``rows``: a cost that no feasible continuation goes below, nm.
+
+        An aircraft still flying is D nm from home with R h of horizon left. Its ground
+        speed stays below V = the airspeed bound + |wind|, and its position after any
+        time t below V t + (V/2 + V_0) dt from where it is now (the integrator's Euler
+        and AB2 steps move x − (h/2) v_prev by at most V per unit of time; V_0 also
+        bounds the stored previous velocity). It arrives, leaves, or is still flying at
+        the horizon's end after t' ≤ R h; either way its share of the cost is at least
+        max(0, d − V t') + c t' with d = D − Δ − slack (c = 454 kt under "homing": the
+        time term, 0 under "paper"), whose minimum over [0, R] is taken in closed form.
+        Aircraft that no longer fly add what they will add at the end.
+        """
+        base = self.base_state
+        states = self.states[rows]
+        status = states[:, :, S_STATUS]
+        flying = status == FLYING
+        delta = states[:, :, S_X : S_Y + 1] - states[:, :, S_DEST_X : S_DEST_Y + 1]
+        distance = np.hypot(delta[..., 0], delta[..., 1])
+        present = (status != ARRIVED) & (status != ABSENT)
+        frozen = np.where(present & ~flying, distance, 0.0).sum(axis=1)
+        flying0 = base[:, S_STATUS] == FLYING
+        elapsed_h = np.where(flying0[None], states[:, :, S_TIME] - base[None, :, S_TIME], 0.0) / SECONDS_PER_HOUR
+        c = self._time_cost_kt
+        speed = self._speed_bound_kt[rows][:, None]
+        previous = np.hypot(states[:, :, kernel.S_VX_PREV], states[:, :, kernel.S_VY_PREV])
+        slack = self._arrival_nm + (0.5 * speed + np.maximum(speed, previous)) * self._dt_h
+        d = np.maximum(distance - slack, 0.0)
+        left_h = ((self.mpc.settings.horizon - self.depth[rows]) * self.mpc.settings.period_s / SECONDS_PER_HOUR)[
+            :, None
+        ]
+        reach_h = np.minimum(d / speed, left_h)
+        share = np.minimum(
+            np.minimum(d, np.maximum(d - speed * left_h, 0.0) + c * left_h), d - speed * reach_h + c * reach_h
+        )
+        lower = frozen + np.where(flying, share, 0.0).sum(axis=1) + c * elapsed_h.sum(axis=1)
+        # Rounding: the bound is compared with a cost summed in another order.
+        self.lower[rows] = np.maximum(lower * (1.0 - 1e-9) - 1e-9, 0.0)
+
+
+def _lazy_chain(
+    candidates: _LazyCandidates,
+    log_proposal: np.ndarray,
+    uniforms: np.ndarray,
+    cost_exponent: float,
+    acceptance: str,
+) -> tuple[int, int, bool]:
+    """``metropolis_hastings_best`` over candidates simulated on demand.
+
+    The chain needs a candidate's cost only to decide whether to move to it. While the
+    chain sits on a feasible state, a candidate whose cost's lower bound already gives
+    ρ ≤ u is rejected whatever its cost (an infeasible one is rejected too), so it is
+    not flown further; every other one is flown a period further and looked at again,
+    and a candidate the chain moves to is always flown to the end. While the chain sits
+    on an infeasible state it moves to every candidate, which is flown to the end.
+    Every verdict is the one ``metropolis_hastings_best`` takes on the full costs, with
+    the same arithmetic, so the best state and the number of moves are the same.
+
+    Returns:
+        (index of the lowest-cost state the chain visited, number of accepted moves,
+        whether any candidate was feasible). When none was, every candidate was flown
+        to its end.
+    """
+    k_total = log_proposal.shape[0]
+    sign = 1.0 if acceptance == "standard" else -1.0
+    log_u = [math.log(max(float(u), 1e-300)) for u in uniforms]
+    log_u_array = np.array(log_u)
+    log_g = log_proposal.tolist()
+    c = candidates
+
+    def refresh() -> tuple[list[float], list[float], list[bool]]:
+        # Logarithms over the whole array, as metropolis_hastings_best takes them.
+        known = np.where(c.done, c.costs, 1.0)
+        log_cost = np.log(np.maximum(known, _COST_FLOOR_NM)).tolist()
+        log_lower = np.log(np.maximum(c.lower, _COST_FLOOR_NM)).tolist()
+        return log_cost, log_lower, c.done.tolist()
+
+    c.complete(np.array([0]))
+    costs = c.costs
+    log_cost, log_lower, done = refresh()
+    current = best = 0
+    accepted = 0
+    block = 16
+    k = 1
+    while k < k_total:
+        if math.isinf(costs[current]):
+            # An infeasible state: the chain moves to every candidate until a feasible one.
+            end = min(k_total, k + block)
+            block *= 2
+            c.complete(np.arange(k, end))
+            log_cost, log_lower, done = refresh()
+            for j in range(k, end):
+                current = j
+                accepted += 1
+                if costs[current] < costs[best] or math.isinf(costs[best]):
+                    best = current
+                if not math.isinf(costs[current]):
+                    break
+            k = current + 1
+            continue
+        if done[k]:
+            if not math.isinf(costs[k]):
+                log_rho = cost_exponent * (log_cost[current] - log_cost[k]) + sign * (log_g[current] - log_g[k])
+                if log_rho >= 0.0 or log_u[k] < log_rho:
+                    current = k
+                    accepted += 1
+                    if costs[current] < costs[best] or math.isinf(costs[best]):
+                        best = current
+            k += 1
+            continue
+        upper = cost_exponent * (log_cost[current] - log_lower[k]) + sign * (log_g[current] - log_g[k])
+        if upper < 0.0 and log_u[k] >= upper:
+            k += 1  # rejected whatever its cost
+            continue
+        # Undecided: fly it, and every later candidate undecided against this state, one
+        # period further (they are flown in one batch).
+        rest = np.arange(k, k_total)
+        rest = rest[~c.done[rest]]
+        upper_rest = cost_exponent * (log_cost[current] - np.asarray(log_lower)[rest]) + sign * (
+            log_proposal[current] - log_proposal[rest]
+        )
+        undecided = ~((upper_rest < 0.0) & (log_u_array[rest] >= upper_rest))
+        undecided[0] = True  # candidate k itself
+        c.advance(rest[undecided])
+        log_cost, log_lower, done = refresh()
+    return best, accepted, bool(np.isfinite(costs).any())
