@@ -110,8 +110,9 @@ the arrival (``_LazyCandidates._bound``). While the chain sits on a feasible sta
 candidate whose bound already gives ρ ≤ u (u its pre-drawn uniform) is rejected
 whatever its cost, as an infeasible one would be; the others are flown a period
 further, in one batch, and looked at again; a state the chain moves to is flown to the
-end. On an infeasible state the chain moves to every candidate, and each is flown to
-the end. Every verdict is the exhaustive chain's, taken with the same arithmetic, and
+end. When Θ_0 itself is infeasible, the chain moves to every candidate until a feasible
+one and then wanders among the random draws, where the bound rejects few: every
+candidate is then flown to the end in one batch, as in the exhaustive search. Every verdict is the exhaustive chain's, taken with the same arithmetic, and
 a round without a feasible candidate has flown every candidate (the wider rounds and
 the fallback see exactly the exhaustive search's survivals), so the applied waypoints,
 the chain's moves, the rounds and the random stream are the same bit for bit
@@ -713,7 +714,8 @@ class _LazyCandidates:
         self._time_cost_kt = AIRSPEED_NOMINAL_KT if s.proposal == "homing" else 0.0
         self._arrival_nm = float(params[nf.P_DELTA])
         self._dt_h = float(params[nf.P_DT]) / SECONDS_PER_HOUR
-        self._bound(np.arange(k))
+        # Before anything flies every candidate's state is the base state.
+        self._bound(np.arange(k), base_state[None])
 
     def advance(self, rows: np.ndarray) -> None:
         """Fly the candidates ``rows`` (none of them done) one more period."""
@@ -753,7 +755,7 @@ class _LazyCandidates:
             self.advance(rows)
             rows = rows[~self.done[rows]]
 
-    def _bound(self, rows: np.ndarray) -> None:
+    def _bound(self, rows: np.ndarray, states: np.ndarray | None = None) -> None:
         """``lower`` of ``rows``: a cost that no feasible continuation goes below, nm.
 
         An aircraft still flying is D nm from home with R h of horizon left. Its ground
@@ -767,7 +769,7 @@ class _LazyCandidates:
         Aircraft that no longer fly add what they will add at the end.
         """
         base = self.base_state
-        states = self.states[rows]
+        states = self.states[rows] if states is None else states
         status = states[:, :, S_STATUS]
         flying = status == FLYING
         delta = states[:, :, S_X : S_Y + 1] - states[:, :, S_DEST_X : S_DEST_Y + 1]
@@ -790,7 +792,7 @@ class _LazyCandidates:
         )
         lower = frozen + np.where(flying, share, 0.0).sum(axis=1) + c * elapsed_h.sum(axis=1)
         # Rounding: the bound is compared with a cost summed in another order.
-        self.lower[rows] = np.maximum(lower * (1.0 - 1e-9) - 1e-9, 0.0)
+        self.lower[rows] = np.maximum(lower * (1.0 - 1e-9) - 1e-9, 0.0)  # broadcast over rows
 
 
 def _lazy_chain(
@@ -806,8 +808,8 @@ def _lazy_chain(
     chain sits on a feasible state, a candidate whose cost's lower bound already gives
     ρ ≤ u is rejected whatever its cost (an infeasible one is rejected too), so it is
     not flown further; every other one is flown a period further and looked at again,
-    and a candidate the chain moves to is always flown to the end. While the chain sits
-    on an infeasible state it moves to every candidate, which is flown to the end.
+    and a candidate the chain moves to is always flown to the end. When the chain's
+    initial state is infeasible, every candidate is flown to the end.
     Every verdict is the one ``metropolis_hastings_best`` takes on the full costs, with
     the same arithmetic, so the best state and the number of moves are the same.
 
@@ -831,28 +833,20 @@ def _lazy_chain(
         return log_cost, log_lower, c.done.tolist()
 
     c.complete(np.array([0]))
+    if math.isinf(c.costs[0]):
+        # The chain starts infeasible: it moves to every candidate until a feasible one,
+        # and then wanders among the random draws (Table I's regime), where the bound
+        # rejects few. Every candidate is flown to the end, in one batch: as much flying
+        # as the exhaustive search, without the overhead of many small batches.
+        c.complete(np.arange(1, k_total))
+        best, accepted, _ = metropolis_hastings_best(c.costs, log_proposal, uniforms, cost_exponent, acceptance)
+        return best, accepted, bool(np.isfinite(c.costs).any())
     costs = c.costs
     log_cost, log_lower, done = refresh()
     current = best = 0
     accepted = 0
-    block = 16
     k = 1
-    while k < k_total:
-        if math.isinf(costs[current]):
-            # An infeasible state: the chain moves to every candidate until a feasible one.
-            end = min(k_total, k + block)
-            block *= 2
-            c.complete(np.arange(k, end))
-            log_cost, log_lower, done = refresh()
-            for j in range(k, end):
-                current = j
-                accepted += 1
-                if costs[current] < costs[best] or math.isinf(costs[best]):
-                    best = current
-                if not math.isinf(costs[current]):
-                    break
-            k = current + 1
-            continue
+    while k < k_total:  # the current state is feasible from here on
         if done[k]:
             if not math.isinf(costs[k]):
                 log_rho = cost_exponent * (log_cost[current] - log_cost[k]) + sign * (log_g[current] - log_g[k])
