@@ -47,10 +47,15 @@ def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--proposal", choices=("homing", "paper"),
                        help="homing (starts the chain aimed home, recovers missed aircraft, searches wider "
                             "before a fallback) or paper (Table I as printed) (default: homing)")
+    group.add_argument("--search", choices=("lazy", "exhaustive"),
+                       help="lazy flies a candidate only as far as the chain needs; exhaustive flies all K over "
+                            "the whole horizon and measures every decision's feasible fraction; both pick the "
+                            "same waypoints (default: lazy)")
 
 
 def _policy_kwargs(args: argparse.Namespace) -> dict:
-    names = ("extractions", "horizon", "wind_model", "constraint_check", "acceptance", "cost_exponent", "proposal")
+    names = ("extractions", "horizon", "wind_model", "constraint_check", "acceptance", "cost_exponent", "proposal",
+             "search")
     kwargs = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
     if kwargs and args.policy != "mpc":
         raise ValueError(f"--{next(iter(kwargs)).replace('_', '-')} applies to --policy mpc only")

@@ -142,3 +142,21 @@ def test_lazy_search_does_not_report_a_feasible_fraction_it_did_not_measure():
 def test_bad_search_setting_is_a_clear_error():
     with pytest.raises(ValueError, match="search = 'fast'.*lazy, exhaustive"):
         MCMCMPC(search="fast")
+
+
+def test_cli_search_option_reaches_the_mpc(monkeypatch):
+    from atc_nf_env import cli
+
+    made = []
+    original = cli.make_policy
+
+    def spy(spec, **settings):
+        made.append(settings)
+        return original(spec, **settings)
+
+    monkeypatch.setattr("atc_nf_env.cli.make_policy", spy)
+    argv = ["fly", "--scenario", "converging-3", "--max-minutes", "5", "--extractions", "20", "--search"]
+    assert cli.main(argv + ["exhaustive"]) == 0
+    assert made[-1].get("search") == "exhaustive"
+    with pytest.raises(SystemExit):
+        cli.main(argv + ["fast"])
