@@ -129,11 +129,19 @@ def wilson(successes: int, runs: int) -> tuple[float, float]:
 
 
 def _results_for(label: str, summaries: list[tuple[Path, dict[str, Any]]]) -> list[tuple[Path, str, dict, dict | None]]:
+    def mpc_of(scenario: str, runs: int) -> dict | None:
+        """The MPC's study of the same scenario and seeds, from any of the summaries."""
+        for _, results in summaries:
+            mpc = results.get(scenario, {}).get("mpc")
+            if mpc and mpc["runs"] == runs:
+                return mpc
+        return None
+
     rows = []
     for path, results in summaries:
         for scenario, by_policy in results.items():
             if label in by_policy:
-                rows.append((path, scenario, by_policy[label], by_policy.get("mpc")))
+                rows.append((path, scenario, by_policy[label], mpc_of(scenario, by_policy[label]["runs"])))
     return rows
 
 
