@@ -29,6 +29,11 @@ Read top to bottom, as the script runs:
      the ego observation and the action's angle change sign) before training: the
      cloned policy learns one direction of roundabout and flies it consistently.
 
+   ``--policy-arch deepsets`` clones into the permutation-invariant network of
+   ``agents.deepsets`` instead of the MLP (with ``--n-neighbours`` slots; it flies any
+   number of aircraft), and ``--wind-sigmas LO,HI`` draws each episode's wind sigma in
+   that range, so that one model learns mixed traffic and wind.
+
 3. **DAgger** (``--dagger-iterations``): the current policy flies new training episodes
    while the MPC labels every state the learner visits (its wind estimate follows the
    learner's flight: after each decision the MPC's prediction of the applied waypoints
