@@ -8,6 +8,11 @@ imitation's quick checks 5 000..), keeps each study's runs in ``--out`` (JSON li
 resumable: a rerun only flies what is missing), and writes the summaries (``--summary``)
 and the markdown table (``--table``); ``agents/results/`` holds those of ``agents/README.md``.
 
+``--shield`` adds, for every model, a study of the model inside the safety filter
+(``atc_nf_env.shield.SafetyFilter``, ``atc-nf evaluate --shield``), labelled ``MODEL+shield``,
+with the filter's interventions (decisions changed, aircraft changed, MPC fallbacks) in
+the table; the decision latency's mean and p99 are printed for every policy.
+
 ``--reuse-mpc DIR`` copies the MPC runs of the same seeds from an earlier study of the
 same scenario (``atc-nf reproduce`` keeps its 1000-run studies of converging-4 and
 converging-6 in ``out/reproduction``) instead of flying them again: the same study (policy,
@@ -28,8 +33,8 @@ from atc_nf_env.evaluate import STEP_TRACE_KEYS, Study, evaluate, read_results
 SCENARIOS = "converging-4,converging-6,random-4"
 
 
-def label_of(policy: str) -> str:
-    return Path(policy).stem if policy.endswith(".zip") else policy
+def label_of(policy: str, shield: bool = False) -> str:
+    return (Path(policy).stem if policy.endswith(".zip") else policy) + ("+shield" if shield else "")
 
 
 def reuse_mpc_runs(study: Study, runs: int, source_dir: Path, target: Path) -> int:
@@ -58,25 +63,31 @@ def reuse_mpc_runs(study: Study, runs: int, source_dir: Path, target: Path) -> i
 
 
 def run(models: list[str], scenarios: list[str], runs: int, mpc_runs: int, out: Path, reuse_mpc: Path | None,
-        workers: int | None, progress: bool, baselines: Sequence[str] = ("nf", "mpc")) -> dict[str, Any]:
+        workers: int | None, progress: bool, baselines: Sequence[str] = ("nf", "mpc"),
+        shield: bool = False) -> dict[str, Any]:
     results: dict[str, Any] = {}
+    plan = [(policy, False) for policy in [*baselines, *models]] + [(model, True) for model in models if shield]
     for scenario in scenarios:
         results[scenario] = {}
-        for policy in [*baselines, *models]:
+        for policy, shielded in plan:
             n = mpc_runs if policy == "mpc" else runs
-            study = Study(policy=policy, scenario=scenario)
-            path = out / scenario / f"{label_of(policy)}.jsonl"
+            study = Study(policy=policy, scenario=scenario, shield=shielded)
+            label = label_of(policy, shielded)
+            path = out / scenario / f"{label}.jsonl"
             if policy == "mpc" and reuse_mpc is not None:
                 copied = reuse_mpc_runs(study, n, reuse_mpc, path)
                 if copied:
                     print(f"{scenario}: {copied} MPC runs copied from {reuse_mpc}", file=sys.stderr)
-            print(f"{scenario}: {policy} x {n}", file=sys.stderr)
+            print(f"{scenario}: {label} x {n}", file=sys.stderr)
             summary = evaluate(study, n, out=path, resume=path.exists(), workers=workers, progress=progress)
             header = study.header()
             # What the cards and tables say about the runs: their settings and seeds.
             summary["study"] = {"wind_sigma_mps": header["wind_sigma_mps"], "max_time_s": header["max_time_s"],
                                 "build": header["build"], "seeds": [0, n - 1]}
-            results[scenario][label_of(policy)] = summary
+            results[scenario][label] = summary
+            p99 = summary["decision_s"].get("p99")
+            print(f"{scenario}: {label} decision mean {_fmt_latency(summary['wall_s_per_decision'])} (over every "
+                  f"decision), p99 {'n/a' if p99 is None else _fmt_latency(p99)}", file=sys.stderr)
     return results
 
 
@@ -91,6 +102,13 @@ def _per_run(summary: dict[str, Any], key: str) -> str:
     return "n/a" if value is None else str(value)
 
 
+def _interventions(shield: dict[str, Any] | None) -> str:
+    if not shield:
+        return ""
+    return (f"{shield['filtered']} of {shield['decisions']} ({100 * shield['filtered_fraction']:.1f} %) / "
+            f"{shield['aircraft_changed']} / {shield['mpc_fallbacks']}")
+
+
 def table(results: dict[str, Any]) -> str:
     """The markdown comparison table. Safety is counted per run (a run counts if any of
     its integration steps breached), next to the pooled share of steps; the success rate
@@ -98,8 +116,9 @@ def table(results: dict[str, Any]) -> str:
     lines = [
         "| scenario | policy | runs | success [95 % CI] | runs with LoS (LoS) | min separation (nm) | "
         "runs outside envelope | runs at airspeed cap | worst excursion (kt) | envelope held (% of steps) | "
-        "mean flight time (min) | decision latency | MPC latency / agent's |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "mean flight time (min) | decision latency | MPC latency / agent's | decision p99 | "
+        "shield: decisions changed / aircraft changed / MPC fallbacks |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for scenario, by_policy in results.items():
         mpc = by_policy.get("mpc", {}).get("wall_s_per_decision")
@@ -111,6 +130,7 @@ def table(results: dict[str, Any]) -> str:
             success = f"{100 * s['success_rate']:.1f} %" + (
                 f" [{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]" if ci else "")
             separation = s["min_separation_nm"]["min"]
+            p99 = s["decision_s"].get("p99")
             worst = s.get("worst_envelope_excursion_kt", s.get("worst_excursion_kt"))
             lines.append(
                 f"| {scenario} | {label} | {s['runs']} | {success} | {s['runs_with_los']} ({s['los_count']}) | "
@@ -118,7 +138,8 @@ def table(results: dict[str, Any]) -> str:
                 f"{_per_run(s, 'runs_with_envelope_violation')} | {_per_run(s, 'runs_at_airspeed_cap')} | "
                 f"{'n/a' if worst is None else f'{worst:.0f}'} | "
                 f"{100 * (1 - s['envelope_violation_fraction']):.2f} | "
-                f"{'n/a' if flight is None else f'{flight:.1f}'} | {_fmt_latency(latency)} | {ratio} |"
+                f"{'n/a' if flight is None else f'{flight:.1f}'} | {_fmt_latency(latency)} | {ratio} | "
+                f"{_fmt_latency(p99) if p99 is not None else 'n/a'} | {_interventions(s.get('shield'))} |"
             )
     return "\n".join(lines) + "\n"
 
@@ -134,24 +155,41 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--reuse-mpc", type=Path, help="folder of earlier MPC studies to copy runs from")
     parser.add_argument("--summary", type=Path, default=Path("out/agents/summary.json"), help="summaries (JSON)")
     parser.add_argument("--table", type=Path, default=Path("out/agents/table.md"), help="the markdown table")
+    parser.add_argument("--write-section", metavar="FILE#NAME",
+                        help="also write the table, with the command that made it, into the marked section NAME "
+                        "(<!-- begin NAME --> ... <!-- end NAME -->) of the Markdown FILE")
     parser.add_argument("--workers", type=int, help="worker processes (default: all cores)")
     parser.add_argument("--baselines", default="nf,mpc",
                         help="comma-separated reference policies flown before the models (empty: none)")
+    parser.add_argument("--shield", action="store_true",
+                        help="also evaluate every model inside the safety filter (rows MODEL+shield)")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
+    section = None
+    if args.write_section:
+        path, _, name = args.write_section.partition("#")
+        if not (path and name and Path(path).is_file()):
+            parser.error(f"--write-section {args.write_section!r}: give FILE#NAME with an existing Markdown FILE")
+        section = (Path(path), name)
     models = [m for m in args.models.split(",") if m]
     for model in models:
         if not Path(model).is_file():
             parser.error(f"--models: {model} does not exist")
     results = run(models, [s for s in args.scenarios.split(",") if s], args.runs, args.mpc_runs or args.runs,
                   args.out, args.reuse_mpc, args.workers, not args.no_progress,
-                  [b for b in args.baselines.split(",") if b])
+                  [b for b in args.baselines.split(",") if b], args.shield)
     args.summary.parent.mkdir(parents=True, exist_ok=True)
     args.summary.write_text(json.dumps(results, indent=2) + "\n")
     text = table(results)
     args.table.parent.mkdir(parents=True, exist_ok=True)
     args.table.write_text(text)
     print(text)
+    if section is not None:
+        from atc_nf_env.experiments.marked_sections import write_marked_section
+
+        command = " ".join(["python -m agents.benchmark", *(argv if argv is not None else sys.argv[1:])])
+        write_marked_section(section[0], section[1], f"Generated by `{command}`:\n\n{text}")
+        print(f"table written into {section[0]} (section {section[1]})", file=sys.stderr)
     return 0
 
 

@@ -27,6 +27,7 @@ PACKAGE_SOURCES: tuple[str, ...] = (
     "metrics.py",
     "policy.py",
     "evaluate.py",
+    "shield.py",
 )
 
 

@@ -9,12 +9,15 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
+
 from atc_nf_env.config import PHYSICS_PRESETS, SimConfig
 from atc_nf_env.episode import MAX_EPISODE_S, run_episode, warm_up
 from atc_nf_env.evaluate import BACKENDS, Study, evaluate
 from atc_nf_env.metrics import format_run, peak_rss_mb, summarize
 from atc_nf_env.policy import available_policies, make_policy
 from atc_nf_env.scenarios import make_scenario
+from atc_nf_env.shield import SafetyFilter, summarize_interventions
 from atc_nf_env.units import WIND_SIGMA_MPS
 
 def _non_negative_float(text: str) -> float:
@@ -91,6 +94,10 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
                         help="NF settings: default, or paper-nf (proximity range 30/15 nm: the paper's "
                         "22 nm NF-alone separation; see REPRODUCTION.md)")
     parser.add_argument("--summary-json", type=Path, help="write the summary metrics to this JSON file")
+    parser.add_argument("--shield", action="store_true",
+                        help="fly the policy inside the safety filter (atc_nf_env.shield): each waypoint set is "
+                        "predicted two periods ahead and replaced by the closest safe alternative, or the MPC's "
+                        "decision, when unsafe; the summary counts its interventions")
     _add_mpc_options(parser)
 
 
@@ -127,6 +134,8 @@ def _fly(args: argparse.Namespace) -> int:
     _check_output_file(args.animate, "--animate")
     scenario = make_scenario(args.scenario, seed=args.seed)
     policy = make_policy(args.policy, **_policy_kwargs(args))
+    if args.shield:
+        policy = SafetyFilter(policy)
     record_every = 1 if (args.plots or args.animate) else 0
     config = SimConfig.preset(args.physics)
     compile_s = warm_up(policy, scenario, seed=args.seed, wind_sigma_mps=args.wind_sigma,
@@ -149,6 +158,13 @@ def _fly(args: argparse.Namespace) -> int:
     if args.summary_json:
         summary = summarize([result.metrics], peak_rss_mb=peak_rss_mb(), compile_s=compile_s)
         summary["policy"] = args.policy
+        if len(result.decision_s):
+            summary["decision_s"].update(median=float(np.median(result.decision_s)),
+                                         p99=float(np.percentile(result.decision_s, 99)),
+                                         max=float(result.decision_s.max()))
+        shield = summarize_interventions([info])
+        if shield is not None:
+            summary["shield"] = shield
         info = dict(info)
         if "fallbacks" in info:  # at the top level, as in evaluate's summary
             summary["fallbacks"] = info.pop("fallbacks")
@@ -157,6 +173,7 @@ def _fly(args: argparse.Namespace) -> int:
         args.summary_json.write_text(json.dumps(summary, indent=2) + "\n")
         print(f"summary written to {args.summary_json}")
     label = Path(args.policy).stem if args.policy.lower().endswith(".zip") else args.policy
+    label += "+shield" if args.shield else ""
     if args.plots:
         from atc_nf_env.plotting import write_episode_plots
 
@@ -183,6 +200,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         policy_kwargs=_policy_kwargs(args),
         max_time_s=args.max_minutes * 60.0,
         physics=args.physics,
+        shield=args.shield,
     )
     summary = evaluate(
         study,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,6 +35,8 @@ class EpisodeResult:
     records: np.ndarray
     waypoints: np.ndarray  # (decisions, N, 2) nm
     decision_times_s: np.ndarray
+    #: (decisions,) wall time of each decision (the policy's ``act``), s.
+    decision_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def episode_wind_kt(seed: int | None, wind_sigma_mps: float) -> np.ndarray:
@@ -162,4 +164,5 @@ def run_episode(
         records=records,
         waypoints=np.array(waypoints),
         decision_times_s=np.array(decision_times),
+        decision_s=np.array(decision_s),
     )

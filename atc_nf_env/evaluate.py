@@ -30,8 +30,9 @@ from atc_nf_env import build, kernel
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import MAX_EPISODE_S, run_episode, warm_up, whole_steps
 from atc_nf_env.metrics import RunMetrics, peak_rss_mb, summarize
-from atc_nf_env.policy import make_policy  # noqa: F401  (re-exported: the evaluator resolves policies by name)
+from atc_nf_env.policy import Policy, make_policy  # (re-exported: the evaluator resolves policies by name)
 from atc_nf_env.scenarios import MAX_SEED, make_scenario
+from atc_nf_env.shield import SafetyFilter, summarize_interventions
 from atc_nf_env.simulation import check_wind_sigma
 from atc_nf_env.units import WIND_SIGMA_MPS
 
@@ -58,10 +59,15 @@ class Study:
     airspeed_every_s: float | None = None
     #: Named physics (``SimConfig.preset``): "default" or "paper-nf".
     physics: str = "default"
+    #: Fly the policy inside the safety filter (``atc_nf_env.shield.SafetyFilter`` with its
+    #: defaults); its counts go to each run's ``policy_info`` and the summary's ``shield``.
+    shield: bool = False
 
     def __post_init__(self) -> None:
         SimConfig.preset(self.physics)  # a clear error on an unknown name
         check_wind_sigma(self.wind_sigma_mps)
+        if not isinstance(self.shield, bool):
+            raise TypeError(f"shield = {self.shield!r}: must be True or False")
         if not isinstance(self.policy_kwargs, dict):
             raise TypeError(f"policy_kwargs = {self.policy_kwargs!r}: must be a dict of the policy's settings")
         # A time limit off the integration grid is refused here, before any worker starts.
@@ -69,8 +75,13 @@ class Study:
         if self.airspeed_every_s is not None:
             whole_steps("airspeed_every_s", self.airspeed_every_s, SimConfig.preset(self.physics).dt_s)
         # Fail before any worker starts on a bad name or setting.
-        make_policy(self.policy, **self.policy_kwargs)
+        self.make_policy()
         make_scenario(self.scenario, seed=0)
+
+    def make_policy(self) -> Policy:
+        """The study's policy (inside the safety filter when ``shield``)."""
+        policy = make_policy(self.policy, **self.policy_kwargs)
+        return SafetyFilter(policy) if self.shield else policy
 
     def header(self) -> dict[str, Any]:
         return {
@@ -83,6 +94,8 @@ class Study:
             "airspeed_every_s": self.airspeed_every_s,
             "config": SimConfig.preset(self.physics).as_dict(),
             "build": build.fingerprint(),
+            # Only when on: the headers of unshielded studies stay as they were.
+            **({"shield": True} if self.shield else {}),
         }
 
 
@@ -96,7 +109,7 @@ def run_one(study: Study, seed: int) -> dict[str, Any]:
     The first run of a study in a process first flies an untimed warm-up (``warm_up``)
     and reports its duration as ``compile_s``; later runs in that process report 0.
     """
-    policy = make_policy(study.policy, **study.policy_kwargs)
+    policy = study.make_policy()
     scenario = make_scenario(study.scenario, seed=seed)
     record_every = 1 if study.airspeed_every_s else 0
     config = SimConfig.preset(study.physics)
@@ -122,6 +135,8 @@ def run_one(study: Study, seed: int) -> dict[str, Any]:
         record["fallback_decisions"] = [k for k, d in enumerate(decisions) if getattr(d, "fallback", False)]
     info = getattr(policy, "episode_info", None)
     record["policy_info"] = info() if callable(info) else {}
+    # Every decision's latency (s), for the percentiles of the summary.
+    record["decision_s_each"] = [float(t) for t in result.decision_s]
     record["peak_rss_mb"] = peak_rss_mb()
     record["compile_s"] = compile_s
     return record
@@ -479,7 +494,15 @@ def summarize_records(records: list[dict[str, Any]]) -> dict[str, Any]:
     infos = [r.get("policy_info") or {} for r in records]
     if any("fallbacks" in info for info in infos):  # only policies that can fall back report it
         summary["fallbacks"] = int(sum(info.get("fallbacks", 0) for info in infos))
+    shield = summarize_interventions(infos)
+    if shield is not None:
+        summary["shield"] = shield
     summary["decisions"] = int(decisions)
+    latencies = [t for r in records for t in r.get("decision_s_each") or ()]
+    if latencies:  # runs written before the per-decision latencies were kept have none
+        summary["decision_s"]["median"] = float(np.median(latencies))
+        summary["decision_s"]["p99"] = float(np.percentile(latencies, 99))
+        summary["decision_s"]["max"] = float(max(latencies))
     summary["wall_s_per_decision"] = (
         sum(r["decision_s_mean"] * r["decisions"] for r in records) / decisions if decisions else 0.0
     )

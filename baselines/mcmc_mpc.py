@@ -471,6 +471,16 @@ class MCMCMPC:
         self._predicted_time_s = view.time_s + s.period_s
         return waypoints
 
+    def set_wind_estimate(self, wind_kt: np.ndarray) -> None:
+        """Replace the "estimated" wind model's estimate (east, north), kt, e.g. by that of a
+        safety filter that calls this controller only now and then, too rarely to keep its own;
+        the next decision starts from it uncorrected."""
+        wind = np.asarray(wind_kt, dtype=np.float64)
+        if wind.shape != (2,) or not np.isfinite(wind).all():
+            raise ValueError(f"wind_kt = {wind_kt!r}: must be two finite numbers (east, north) in kt")
+        self._wind_estimate_kt = wind.copy()
+        self._predicted_positions = None
+
     def episode_info(self) -> dict[str, Any]:
         """Diagnostics of the episode so far (for reports and the evaluator)."""
         fractions = [d.feasible_fraction for d in self.decisions if d.feasible_fraction is not None]

@@ -1,0 +1,455 @@
+"""A safety filter around any policy: predict the proposed waypoints, change them only if unsafe.
+
+``SafetyFilter(policy)`` is itself a policy of the ``atc_nf_env.policy.Policy`` interface,
+so it wraps the MCMC-MPC, the NF alone and trained agents alike (``atc-nf fly|evaluate
+--policy P --shield``). At every decision (every T = 5 min) it
+
+1. asks the wrapped policy for its waypoints (N, 2) nm;
+2. predicts them with the simulator kernel, one world started from a copy of the state,
+   over the coming period and, with ``lookahead_periods=2`` (the default), one more
+   period in which every aircraft is re-aimed home (``home_distance_nm`` toward its
+   destination, turned at most ``recovery_angle_rad`` from its heading): a waypoint set
+   that is safe for one period but leaves no safe continuation is caught a period
+   early. The prediction checks, at every integration step, the airspeed envelope
+   narrowed by ``envelope_margin_kt`` on each side (the wind is hidden: the prediction
+   uses an estimate, and its error moves the airspeed) and the separation minimum
+   (the wind moves every aircraft alike, so separation needs no margin);
+3. if the prediction is safe, returns the policy's waypoints unchanged (the same array);
+4. otherwise predicts, in one batch, a small set of alternatives: for each aircraft the
+   prediction blames (an envelope breach or a loss of separation), its proposed
+   waypoint turned by ±10°, ±20°, ±40°, moved to 100 or 130 nm in the same direction,
+   or replaced by the homing waypoint 100 or 130 nm out, every other aircraft keeping
+   its proposal; only if none of these is safe, a second batch changes all flying
+   aircraft together: all homing (100, 130 nm), all proposals turned by ±20° or ±40°.
+   The closest safe alternative is applied: fewest aircraft changed, then the least
+   total displacement of the changed waypoints (nm);
+5. if no alternative is safe, applies the MCMC-MPC's decision (``fallback="mpc"``,
+   the policy ``mpc`` of the registry, with the filter's wind estimate), or the
+   alternative that stayed safe for the most integration steps (``fallback="least-bad"``).
+
+The filter sees what the policy sees, the state and not the wind. Its wind estimate is
+the MCMC-MPC's "estimated" model: after each period, the drift of the aircraft from
+where the filter predicted the applied waypoints would put them, divided by T.
+
+``episode_info()`` reports the wrapped policy's diagnostics with the filter's counts
+added under names of their own (``SHIELD_INFO_KEYS``, all prefixed ``shield_``; the same
+keys at every call): decisions seen, decisions changed, aircraft changed, decisions
+whose change was needed only by the look-ahead period, MPC fallbacks, and decisions
+applied although predicted unsafe (``shield_unresolved``: a least-bad fallback, or an MPC
+decision the filter's prediction still finds unsafe).
+
+Units: nautical miles, knots, seconds, radians.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from atc_nf_env import kernel
+from atc_nf_env.config import SimConfig
+from atc_nf_env.kernel import ABSENT, FLYING, S_DEST_X, S_DEST_Y, S_HEADING, S_STATUS, S_WP_X, S_WP_Y, S_X, S_Y
+from atc_nf_env.policy import Policy
+from atc_nf_env.scenarios import Scenario
+from atc_nf_env.simulation import WorldView
+from atc_nf_env.units import DECISION_PERIOD_S, SECONDS_PER_HOUR
+
+FALLBACKS = ("mpc", "least-bad")
+
+#: The filter's counts in ``episode_info()`` (prefixed so that none shadows a key of the
+#: wrapped policy, such as the MPC's ``fallbacks``).
+SHIELD_INFO_KEYS = (
+    "shield_decisions",
+    "shield_filtered",
+    "shield_aircraft_changed",
+    "shield_filtered_for_lookahead",
+    "shield_mpc_fallbacks",
+    "shield_unresolved",
+)
+
+#: Turns of a proposed waypoint about its aircraft tried per aircraft, rad.
+TURNS_RAD = tuple(math.radians(a) for a in (10.0, -10.0, 20.0, -20.0, 40.0, -40.0))
+#: Turns tried for all flying aircraft at once, rad.
+JOINT_TURNS_RAD = tuple(math.radians(a) for a in (20.0, -20.0, 40.0, -40.0))
+#: Waypoint distances tried in the proposal's direction and toward home, nm.
+DISTANCES_NM = (100.0, 130.0)
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """Angles wrapped to [−π, π), rad."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _finite_number(name: str, value: Any, low: float, high: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} = {value!r}: must be a number")
+    if not (math.isfinite(value) and low <= value <= high):
+        raise ValueError(f"{name} = {value!r}: must be a finite number in [{low:g}, {high:g}]")
+    return float(value)
+
+
+class SafetyFilter:
+    """A policy that flies ``policy``'s waypoints unless the kernel predicts them unsafe.
+
+    Args:
+        policy: any object of the ``Policy`` interface (``reset``, ``act``, ``name``).
+        lookahead_periods: 1 (the coming period) or 2 (and one more period with every
+            aircraft re-aimed home), periods of ``period_s``.
+        envelope_margin_kt: the prediction keeps the airspeed this far inside
+            [366, 540] kt, kt (the MCMC-MPC's default margin, 4 kt).
+        fallback: "mpc" (the MCMC-MPC decides when no alternative is safe) or
+            "least-bad" (the alternative that stayed safe longest).
+        home_distance_nm: distance of the homing waypoint of the look-ahead period, nm.
+        recovery_angle_rad: a homing waypoint turns at most this far from the heading, rad
+            (a waypoint behind the aircraft commands a reverse airspeed).
+        period_s: the decision period T, s.
+        mpc_settings: settings of the fallback MPC (``MPCSettings`` field names).
+
+    Example:
+        >>> from atc_nf_env.episode import run_episode
+        >>> from atc_nf_env.policy import make_policy
+        >>> from atc_nf_env.scenarios import make_scenario
+        >>> shielded = SafetyFilter(make_policy("nf"))
+        >>> result = run_episode(shielded, make_scenario("converging-4"), seed=0)  # doctest: +SKIP
+        >>> shielded.episode_info()["shield_filtered"]  # doctest: +SKIP
+    """
+
+    #: Whether this process has loaded the batched kernel (see ``reset``).
+    _batch_warm = False
+
+    def __init__(
+        self,
+        policy: Policy,
+        *,
+        lookahead_periods: int = 2,
+        envelope_margin_kt: float = 4.0,
+        fallback: str = "mpc",
+        home_distance_nm: float = 130.0,
+        recovery_angle_rad: float = math.pi / 3,
+        period_s: float = DECISION_PERIOD_S,
+        mpc_settings: dict[str, Any] | None = None,
+    ) -> None:
+        if isinstance(policy, SafetyFilter):
+            raise TypeError("policy is already a SafetyFilter; wrap the policy itself once")
+        if not (callable(getattr(policy, "act", None)) and callable(getattr(policy, "reset", None))):
+            raise TypeError(
+                f"policy is a {type(policy).__name__}; expected an object of the atc_nf_env.policy.Policy "
+                "interface (reset(scenario, config, seed) and act(view))"
+            )
+        if isinstance(lookahead_periods, bool) or lookahead_periods not in (1, 2):
+            raise ValueError(f"lookahead_periods = {lookahead_periods!r}: allowed: 1, 2")
+        if fallback not in FALLBACKS:
+            raise ValueError(f"fallback = {fallback!r}: allowed: {', '.join(FALLBACKS)}")
+        if mpc_settings is not None and not isinstance(mpc_settings, dict):
+            raise TypeError(f"mpc_settings = {mpc_settings!r}: must be a dict of MPCSettings fields or None")
+        self.policy = policy
+        self.lookahead_periods = int(lookahead_periods)
+        self.envelope_margin_kt = _finite_number("envelope_margin_kt", envelope_margin_kt, 0.0, 40.0)
+        self.fallback = fallback
+        self.home_distance_nm = _finite_number("home_distance_nm", home_distance_nm, 1.0, 1000.0)
+        self.recovery_angle_rad = _finite_number("recovery_angle_rad", recovery_angle_rad, 1e-6, math.pi / 2)
+        self.period_s = _finite_number("period_s", period_s, 1e-9, 86400.0)
+        self.mpc_settings = dict(mpc_settings or {})
+        self.name = f"{getattr(policy, 'name', type(policy).__name__)}+shield"
+        self._mpc: Policy | None = None
+        if fallback == "mpc":
+            from atc_nf_env.policy import make_policy
+
+            self._mpc = make_policy("mpc", **self.mpc_settings)
+        self._params: np.ndarray | None = None
+        self._scratch = kernel.KernelScratch()
+        self._counts = dict.fromkeys(SHIELD_INFO_KEYS, 0)
+        self._wind_estimate_kt = np.zeros(2)
+        self._wind_1 = np.zeros((1, 2))
+        self._predicted_positions: np.ndarray | None = None
+        self._predicted_flying: np.ndarray | None = None
+        self._predicted_time_s = -1.0
+
+    # -- Policy interface -------------------------------------------------------------
+    def reset(self, scenario: Scenario, config: SimConfig, seed: int | None = None) -> None:
+        """Reset the wrapped policy (and the fallback MPC) for a new episode."""
+        self.policy.reset(scenario, config, seed)
+        if self._mpc is not None:
+            self._mpc.reset(scenario, config, seed)
+        margin = min(self.envelope_margin_kt, 0.25 * (config.airspeed_max_kt - config.airspeed_min_kt))
+        self._config = dataclasses.replace(
+            config, airspeed_min_kt=config.airspeed_min_kt + margin, airspeed_max_kt=config.airspeed_max_kt - margin
+        )
+        self._params = self._config.to_params(scenario.workspace_radius_nm, stop_on_violation=True)
+        self._period_steps = kernel.steps_for(self.period_s, config.dt_s)
+        self._waypoint_limit_nm = 0.99 * (scenario.workspace_radius_nm - config.aircraft_radius_nm)
+        self._counts = dict.fromkeys(SHIELD_INFO_KEYS, 0)
+        self._wind_estimate_kt = np.zeros(2)
+        self._wind_1 = np.zeros((1, 2))
+        self._predicted_positions = None
+        self._predicted_flying = None
+        self._predicted_time_s = -1.0
+        if not SafetyFilter._batch_warm:
+            # Load the batched kernel (numba's cache, or a compilation) now, not inside the
+            # first timed decision that needs alternatives.
+            from atc_nf_env.simulation import initial_state
+
+            state = initial_state(scenario, 2)
+            kernel.advance(state, state[:, :, S_WP_X : S_WP_Y + 1].copy(), np.zeros((2, 2)), config.dt_s,
+                           self._params, scratch=kernel.KernelScratch())
+            SafetyFilter._batch_warm = True
+
+    def act(self, view: WorldView) -> np.ndarray:
+        """The wrapped policy's waypoints (N, 2) nm, or the closest safe alternative."""
+        if self._params is None:
+            raise RuntimeError("call reset(scenario, config, seed) before act()")
+        proposal = self.policy.act(view)
+        if np.iscomplexobj(proposal):
+            raise ValueError(f"{type(self.policy).__name__}.act returned complex waypoints; expected real (N, 2) nm")
+        proposal = np.asarray(proposal, dtype=np.float64)
+        n = view.state.shape[0]
+        if proposal.shape != (n, 2):
+            raise ValueError(f"{type(self.policy).__name__}.act returned shape {proposal.shape}; expected ({n}, 2) nm")
+        if not np.isfinite(proposal).all():
+            raise ValueError(f"{type(self.policy).__name__}.act returned NaN or inf waypoints: {proposal.tolist()}")
+        flying = view.state[:, S_STATUS] == FLYING
+        self._update_wind_estimate(view, flying)
+        self._counts["shield_decisions"] += 1
+        if not flying.any():
+            return proposal
+        planned = proposal if flying.all() else np.where(flying[:, None], proposal, view.state[:, S_WP_X : S_WP_Y + 1])
+        breach = self._proposal_breach(view, planned)
+        if breach is None:
+            return proposal
+        survived, period1_ok, blamed = breach
+        # Unsafe: the alternatives, one batch of single-aircraft changes, then (only if
+        # none is safe: they would rank first) one of all-aircraft changes.
+        tried = []
+        for joint in (False, True):
+            candidates, changed = self._alternatives(view, planned, blamed, joint)
+            survived_c, positions_c, alive_c = self._predict(view.state, candidates)
+            tried.append((candidates, changed, survived_c))
+            safe = survived_c == self._full_steps()
+            if safe.any():
+                break
+        self._counts["shield_filtered"] += 1
+        if period1_ok:
+            self._counts["shield_filtered_for_lookahead"] += 1
+        if safe.any():
+            displacement = np.hypot(*(candidates - planned[None]).transpose(2, 0, 1)).sum(axis=1)
+            order = np.lexsort((displacement, changed.sum(axis=1), ~safe))
+            best = int(order[0])
+            applied = np.where(changed[best][:, None], candidates[best], proposal)
+            self._counts["shield_aircraft_changed"] += int(changed[best].sum())
+            self._remember(view, positions_c[best], alive_c[best])
+            return applied
+        if self._mpc is not None:
+            self._counts["shield_mpc_fallbacks"] += 1
+            self._share_wind_estimate()
+            decided = np.asarray(self._mpc.act(view), dtype=np.float64)
+            applied = np.where(flying[:, None], decided, proposal)
+            survived_m, positions_m, alive_m = self._predict(view.state, applied[None])
+            if survived_m[0] < self._full_steps():
+                self._counts["shield_unresolved"] += 1
+            self._counts["shield_aircraft_changed"] += int((flying & (applied != proposal).any(axis=1)).sum())
+            self._remember(view, positions_m[0], alive_m[0])
+            return applied
+        self._counts["shield_unresolved"] += 1
+        candidates, changed, survived_c = (np.concatenate(parts) for parts in zip(*tried))
+        displacement = np.hypot(*(candidates - planned[None]).transpose(2, 0, 1)).sum(axis=1)
+        best = int(np.lexsort((displacement, changed.sum(axis=1), -survived_c))[0])
+        if survived_c[best] <= survived:
+            return proposal  # no alternative stays safe longer than the policy's own
+        applied = np.where(changed[best][:, None], candidates[best], proposal)
+        self._counts["shield_aircraft_changed"] += int(changed[best].sum())
+        self._predicted_positions = None  # a prediction cut short at a breach says nothing of the wind
+        return applied
+
+    def episode_info(self) -> dict[str, Any]:
+        """The wrapped policy's diagnostics and the filter's counts (``SHIELD_INFO_KEYS``)."""
+        inner = getattr(self.policy, "episode_info", None)
+        info = dict(inner()) if callable(inner) else {}
+        info.update(self._counts)
+        info["shield_wind_estimate_kt"] = [float(w) for w in self._wind_estimate_kt]
+        return info
+
+    # -- internals ----------------------------------------------------------------------
+    def _full_steps(self) -> int:
+        return self.lookahead_periods * self._period_steps
+
+    def _proposal_breach(self, view: WorldView, planned: np.ndarray) -> tuple[int, bool, np.ndarray] | None:
+        """None if one waypoint set (N, 2) is predicted safe over the look-ahead (and its
+        prediction is remembered), else (integration steps it stayed safe, whether the first
+        period was safe, the aircraft the breach involved (N,)). The common case, kept to
+        the fewest array operations."""
+        state = view.state[None].copy()
+        trace = kernel.advance(state, planned[None], self._wind_1, self.period_s, self._params, scratch=self._scratch)
+        if trace.violated[0]:
+            return int(trace.steps_done[0]) - 1, False, self._blamed(trace)
+        positions = state[0, :, S_X : S_Y + 1].copy()
+        alive = state[0, :, S_STATUS] == FLYING
+        if self.lookahead_periods == 2 and alive.any():
+            home = self._homing_one(state[0], planned)
+            trace = kernel.advance(state, home, self._wind_1, self.period_s, self._params, scratch=self._scratch)
+            if trace.violated[0]:
+                return self._period_steps + int(trace.steps_done[0]) - 1, True, self._blamed(trace)
+        self._predicted_positions = positions
+        self._predicted_flying = alive
+        self._predicted_time_s = view.time_s + self.period_s
+        return None
+
+    @staticmethod
+    def _blamed(trace: kernel.Trace) -> np.ndarray:
+        """(N,) the aircraft of world 0 that left the envelope or lost separation."""
+        return (trace.violation_steps[0] > 0) | trace.los_pairs[0].any(axis=1)
+
+    def _predict(
+        self, base_state: np.ndarray, waypoints: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fly B candidate waypoint sets (B, N, 2) from ``base_state`` under the wind estimate.
+
+        Returns the integration steps each world stayed safe (the full look-ahead when it
+        never breached, or when every aircraft arrived), and the positions (B, N, 2) and
+        flying flags (B, N) after the first period.
+        """
+        n_worlds = waypoints.shape[0]
+        states = np.repeat(base_state[None], n_worlds, axis=0)
+        flying0 = base_state[:, S_STATUS] == FLYING
+        wind = np.repeat(self._wind_estimate_kt[None], n_worlds, axis=0)
+        survived = np.zeros(n_worlds, dtype=np.int64)
+        safe = np.ones(n_worlds, dtype=bool)
+        positions = alive = None
+        for period in range(self.lookahead_periods):
+            if period > 0:
+                waypoints = self._homing(states, self.home_distance_nm)
+                waypoints[:, ~flying0] = base_state[None, ~flying0, S_WP_X : S_WP_Y + 1]
+            trace = kernel.advance(states, waypoints, wind, self.period_s, self._params, scratch=self._scratch)
+            done = np.where(trace.violated, trace.steps_done - 1, self._period_steps)
+            survived += np.where(safe, done, 0)
+            newly_bad = trace.violated & safe
+            if period == 0:
+                positions = states[:, :, S_X : S_Y + 1].copy()
+                alive = states[:, :, S_STATUS] == FLYING
+            safe &= ~newly_bad
+            if not safe.any():
+                break
+            # A world that breached is unsafe already: stop simulating it.
+            status = states[:, :, S_STATUS]
+            status[newly_bad] = np.where(status[newly_bad] == FLYING, ABSENT, status[newly_bad])
+        return survived, positions, alive
+
+    def _homing(self, states: np.ndarray, distance_nm: float) -> np.ndarray:
+        """Waypoints (B, N, 2): each aircraft aimed at its destination ``distance_nm`` out,
+        turned at most ``recovery_angle_rad`` from its heading, inside the workspace."""
+        position = states[:, :, S_X : S_Y + 1]
+        to_dest = states[:, :, S_DEST_X : S_DEST_Y + 1] - position
+        bearing = np.arctan2(to_dest[..., 1], to_dest[..., 0])
+        heading = states[:, :, S_HEADING]
+        direction = heading + np.clip(_wrap(bearing - heading), -self.recovery_angle_rad, self.recovery_angle_rad)
+        return self._inside(position + distance_nm * np.stack([np.cos(direction), np.sin(direction)], axis=-1))
+
+    def _homing_one(self, state: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """``_homing`` of one world (N, N_STATE) as (1, N, 2), with scalar arithmetic (a
+        handful of aircraft: cheaper than array operations); aircraft not flying keep ``keep``."""
+        home = keep[None].copy()
+        limit = self._waypoint_limit_nm
+        turn = self.recovery_angle_rad
+        distance = self.home_distance_nm
+        for i in range(state.shape[0]):
+            if state[i, S_STATUS] != FLYING:
+                continue
+            x, y, heading = state[i, S_X], state[i, S_Y], state[i, S_HEADING]
+            bearing = math.atan2(state[i, S_DEST_Y] - y, state[i, S_DEST_X] - x)
+            error = (bearing - heading + math.pi) % (2.0 * math.pi) - math.pi
+            direction = heading + min(max(error, -turn), turn)
+            wx, wy = x + distance * math.cos(direction), y + distance * math.sin(direction)
+            radius = math.hypot(wx, wy)
+            scale = min(1.0, limit / max(radius, 1e-12))
+            home[0, i, 0], home[0, i, 1] = wx * scale, wy * scale
+        return home
+
+    def _inside(self, waypoints: np.ndarray) -> np.ndarray:
+        """Waypoints pulled toward the centre where they lie outside the workspace."""
+        radius = np.hypot(waypoints[..., 0], waypoints[..., 1])
+        return waypoints * np.minimum(1.0, self._waypoint_limit_nm / np.maximum(radius, 1e-12))[..., None]
+
+    def _alternatives(
+        self, view: WorldView, planned: np.ndarray, blamed: np.ndarray, joint: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Candidate waypoint sets (M, N, 2) and which aircraft each changes (M, N): the
+        single-aircraft changes of the blamed aircraft, or (``joint``) the all-aircraft ones."""
+        flying = view.flying
+        suspects = np.flatnonzero(blamed & flying)
+        if suspects.size == 0:
+            suspects = np.flatnonzero(flying)
+        position = view.state[:, S_X : S_Y + 1]
+        offset = planned - position
+        distance = np.hypot(offset[:, 0], offset[:, 1])
+        direction = np.arctan2(offset[:, 1], offset[:, 0])
+        state = view.state[None]
+        turns = np.array(JOINT_TURNS_RAD if joint else TURNS_RAD)
+        # Variants (V, N, 2), a waypoint per aircraft: the proposals turned, at other
+        # distances (not when joint), and homing.
+        angle = direction[None, :] + turns[:, None]
+        turned = position + distance[None, :, None] * np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+        parts = [turned]
+        if not joint:
+            unit = np.stack([np.cos(direction), np.sin(direction)], axis=-1)
+            parts.append(position + np.array(DISTANCES_NM)[:, None, None] * unit)
+        parts += [self._homing(state, d) for d in DISTANCES_NM]
+        variants = self._inside(np.concatenate(parts))
+        if joint:
+            candidates = np.where(flying[None, :, None], variants, planned[None])
+            return candidates, np.repeat(flying[None], len(variants), axis=0)
+        n_variants, n = len(variants), flying.shape[0]
+        candidates = np.repeat(planned[None], suspects.size * n_variants, axis=0).reshape(suspects.size, n_variants, n, 2)
+        changed = np.zeros((suspects.size, n_variants, n), dtype=bool)
+        for k, i in enumerate(suspects):
+            candidates[k, :, i] = variants[:, i]
+            changed[k, :, i] = True
+        return candidates.reshape(-1, n, 2), changed.reshape(-1, n)
+
+    def _remember(self, view: WorldView, positions: np.ndarray, alive: np.ndarray) -> None:
+        """Keep where the applied waypoints are predicted to put the aircraft after one period."""
+        self._predicted_positions = positions.copy()
+        self._predicted_flying = alive.copy()
+        self._predicted_time_s = view.time_s + self.period_s
+
+    def _update_wind_estimate(self, view: WorldView, flying: np.ndarray) -> None:
+        """Correct the wind estimate by the drift from the last prediction (the MPC's
+        "estimated" wind model)."""
+        if self._predicted_positions is None or abs(view.time_s - self._predicted_time_s) > 1e-6:
+            return
+        both = flying & self._predicted_flying
+        if both.any():
+            error_nm = view.state[both, S_X : S_Y + 1] - self._predicted_positions[both]
+            self._wind_estimate_kt = self._wind_estimate_kt + error_nm.mean(axis=0) / (
+                self.period_s / SECONDS_PER_HOUR
+            )
+            self._wind_1 = self._wind_estimate_kt[None].copy()
+        self._predicted_positions = None
+
+    def _share_wind_estimate(self) -> None:
+        """Hand the filter's wind estimate to the fallback MPC, which is not called every
+        period and so cannot keep an estimate of its own."""
+        setter = getattr(self._mpc, "set_wind_estimate", None)
+        if callable(setter):
+            setter(self._wind_estimate_kt)
+
+
+def summarize_interventions(infos: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The filter's counts over runs (their ``episode_info()``): totals, the runs with any
+    change, and the share of decisions changed; None when no run was shielded."""
+    shielded = [info for info in infos if "shield_decisions" in info]
+    if not shielded:
+        return None
+    totals = {key.removeprefix("shield_"): int(sum(info[key] for info in shielded)) for key in SHIELD_INFO_KEYS}
+    decisions = totals["decisions"]
+    return {
+        **totals,
+        "runs": len(shielded),
+        "runs_filtered": int(sum(info["shield_filtered"] > 0 for info in shielded)),
+        "runs_with_mpc_fallback": int(sum(info["shield_mpc_fallbacks"] > 0 for info in shielded)),
+        "filtered_fraction": totals["filtered"] / decisions if decisions else 0.0,
+    }
+
+
+__all__ = ["FALLBACKS", "SHIELD_INFO_KEYS", "SafetyFilter", "summarize_interventions"]

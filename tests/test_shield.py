@@ -1,0 +1,228 @@
+"""The safety filter (``atc_nf_env.shield.SafetyFilter``): it removes breaches a policy
+would fly, never touches a waypoint set it predicts safe, counts its interventions, refuses
+bad arguments and is deterministic per seed."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from atc_nf_env.cli import main
+from atc_nf_env.episode import run_episode
+from atc_nf_env.evaluate import Study, evaluate
+from atc_nf_env.scenarios import make_scenario
+from atc_nf_env.shield import SHIELD_INFO_KEYS, SafetyFilter, summarize_interventions
+from atc_nf_env.simulation import WorldView
+
+
+class AimThrough:
+    """Every aircraft aimed at its destination, ``distance_nm`` out (past it on final):
+    in the envelope in open traffic, not where the NF's avoidance turns aircraft hard."""
+
+    name = "aim-through"
+
+    def __init__(self, distance_nm: float = 110.0) -> None:
+        self.distance_nm = distance_nm
+        self.proposals: list[np.ndarray] = []
+
+    def reset(self, scenario, config, seed=None) -> None:
+        self.proposals = []
+
+    def act(self, view: WorldView) -> np.ndarray:
+        to_dest = view.destinations - view.positions
+        distance = np.hypot(to_dest[:, 0], to_dest[:, 1])
+        waypoints = view.positions + to_dest * (self.distance_nm / np.maximum(distance, 1e-9))[:, None]
+        self.proposals.append(waypoints)
+        return waypoints
+
+
+class Behind(AimThrough):
+    """Waypoints 100 nm behind every aircraft: the NF answers with a reverse airspeed."""
+
+    name = "behind"
+
+    def act(self, view: WorldView) -> np.ndarray:
+        heading = view.headings
+        waypoints = view.positions - 100.0 * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+        self.proposals.append(waypoints)
+        return waypoints
+
+
+def test_a_policy_flying_out_of_the_envelope_is_filtered_and_the_episode_stays_inside():
+    scenario = make_scenario("converging-4")
+    raw = run_episode(Behind(), scenario, seed=0, max_time_s=1800).metrics
+    assert raw.worst_excursion_kt > 100  # the policy does breach, far
+    shielded = SafetyFilter(Behind(), fallback="least-bad")
+    metrics = run_episode(shielded, scenario, seed=0, max_time_s=1800).metrics
+    assert metrics.envelope_violation_fraction == 0.0 and metrics.worst_excursion_kt == 0.0
+    assert metrics.los_count == 0
+    info = shielded.episode_info()
+    assert info["shield_decisions"] == 6 and info["shield_filtered"] == 6
+    assert info["shield_aircraft_changed"] >= 6
+
+
+def test_a_breach_on_the_approach_is_removed():
+    # Aimed home through the NF's avoidance of converging-3, the airspeed reverses.
+    scenario = make_scenario("converging-3")
+    raw = run_episode(AimThrough(), scenario, seed=1).metrics
+    assert raw.worst_excursion_kt > 0
+    shielded = SafetyFilter(AimThrough(), fallback="least-bad")
+    metrics = run_episode(shielded, scenario, seed=1).metrics
+    assert metrics.success and metrics.worst_excursion_kt == 0.0 and metrics.los_count == 0
+    assert shielded.episode_info()["shield_filtered"] >= 1
+
+
+@pytest.mark.parametrize("scenario_name, seed", [("random-2", 0), ("random-3", 0), ("random-3", 1)])
+def test_a_safe_policy_is_never_changed_bit_for_bit(scenario_name, seed):
+    scenario = make_scenario(scenario_name, seed=seed)
+    plain = run_episode(AimThrough(), scenario, seed=seed, record_every=1)
+    inner = AimThrough()
+    shielded = SafetyFilter(inner)
+    result = run_episode(shielded, scenario, seed=seed, record_every=1)
+    assert shielded.episode_info()["shield_filtered"] == 0
+    assert np.array_equal(result.waypoints, np.array(inner.proposals))
+    assert np.array_equal(result.waypoints, plain.waypoints)
+    assert np.array_equal(result.records, plain.records)
+    assert result.metrics.flight_time_min == plain.metrics.flight_time_min
+
+
+def test_the_unchanged_proposal_is_returned_as_is():
+    scenario = make_scenario("random-2", seed=0)
+    inner = AimThrough()
+    shielded = SafetyFilter(inner)
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.simulation import Simulation
+
+    shielded.reset(scenario, SimConfig(), 0)
+    out = shielded.act(Simulation(scenario).view())
+    assert out is inner.proposals[-1]
+
+
+def test_same_seed_same_filtered_episode():
+    scenario = make_scenario("converging-3")
+    runs = [run_episode(SafetyFilter(AimThrough(), fallback="least-bad"), scenario, seed=1, record_every=1)
+            for _ in range(2)]
+    assert np.array_equal(runs[0].waypoints, runs[1].waypoints)
+    assert np.array_equal(runs[0].records, runs[1].records)
+
+
+class NoAlternatives(SafetyFilter):
+    """A filter whose every alternative is the unsafe proposal, so that the MPC decides."""
+
+    def _alternatives(self, view, planned, blamed, joint):
+        return planned[None].copy(), np.zeros((1, planned.shape[0]), dtype=bool)
+
+
+def test_with_no_safe_alternative_the_mpc_decides_deterministically_and_is_counted():
+    scenario = make_scenario("converging-3")
+    results, infos = [], []
+    for _ in range(2):
+        shielded = NoAlternatives(Behind(), mpc_settings={"extractions": 64})
+        results.append(run_episode(shielded, scenario, seed=3, max_time_s=600))
+        infos.append(shielded.episode_info())
+    assert infos[0]["shield_mpc_fallbacks"] == infos[0]["shield_filtered"] == 2
+    assert infos[0] == infos[1]
+    assert np.array_equal(results[0].waypoints, results[1].waypoints)
+    assert results[0].metrics.worst_excursion_kt == 0.0
+
+
+def test_episode_info_keeps_its_keys_and_never_shadows_the_policy_s():
+    from baselines import MCMCMPC
+
+    shielded = SafetyFilter(MCMCMPC(extractions=32))
+    before = shielded.episode_info()
+    run_episode(shielded, make_scenario("converging-3"), seed=0, max_time_s=600)
+    after = shielded.episode_info()
+    assert set(before) == set(after)
+    assert set(SHIELD_INFO_KEYS) <= set(after)
+    assert "fallbacks" in after and after["fallbacks"] == MCMCMPC.episode_info(shielded.policy)["fallbacks"]
+    assert all(key.startswith("shield_") for key in set(after) - set(shielded.policy.episode_info()))
+
+
+def test_bad_arguments_are_refused():
+    with pytest.raises(TypeError, match="Policy interface"):
+        SafetyFilter(object())
+    with pytest.raises(TypeError, match="already a SafetyFilter"):
+        SafetyFilter(SafetyFilter(AimThrough(), fallback="least-bad"))
+    with pytest.raises(ValueError, match="lookahead_periods"):
+        SafetyFilter(AimThrough(), lookahead_periods=3)
+    with pytest.raises(ValueError, match="fallback"):
+        SafetyFilter(AimThrough(), fallback="pray")
+    with pytest.raises(ValueError, match="envelope_margin_kt"):
+        SafetyFilter(AimThrough(), envelope_margin_kt=float("nan"))
+    with pytest.raises(TypeError, match="home_distance_nm"):
+        SafetyFilter(AimThrough(), home_distance_nm="far")
+    with pytest.raises(TypeError):
+        SafetyFilter(AimThrough(), margin=3.0)  # unknown keyword
+    with pytest.raises(ValueError, match="unknown MPC settings"):
+        SafetyFilter(AimThrough(), mpc_settings={"extractons": 10})
+    with pytest.raises(RuntimeError, match="reset"):
+        SafetyFilter(AimThrough(), fallback="least-bad").act(None)
+
+
+@pytest.mark.parametrize("bad", [np.zeros((2, 2)), np.full((3, 2), np.nan), np.zeros((3, 2)) + 1j])
+def test_a_policy_returning_bad_waypoints_is_refused(bad):
+    class Bad(AimThrough):
+        def act(self, view):
+            return bad
+
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.simulation import Simulation
+
+    scenario = make_scenario("converging-3")
+    shielded = SafetyFilter(Bad(), fallback="least-bad")
+    shielded.reset(scenario, SimConfig(), 0)
+    with pytest.raises(ValueError, match="act returned"):
+        shielded.act(Simulation(scenario).view())
+
+
+def test_study_and_cli_count_interventions(tmp_path, capsys):
+    with pytest.raises(TypeError, match="shield"):
+        Study(policy="nf", scenario="converging-3", shield="yes")
+    study = Study(policy="nf", scenario="converging-3", max_time_s=600.0, shield=True)
+    assert study.header()["shield"] is True
+    assert "shield" not in Study(policy="nf", scenario="converging-3").header()
+    summary = evaluate(study, 2, workers=1, progress=False)
+    shield = summary["shield"]
+    assert shield["runs"] == 2 and shield["decisions"] == summary["decisions"] == 4
+    assert 0 <= shield["filtered"] <= shield["decisions"]
+    assert summary["decision_s"]["p99"] >= summary["decision_s"]["median"] > 0
+    out = tmp_path / "fly.json"
+    code = main(["fly", "--policy", "nf", "--scenario", "converging-3", "--max-minutes", "10", "--shield",
+                 "--summary-json", str(out)])
+    assert code == 0
+    written = json.loads(out.read_text())
+    assert written["shield"]["decisions"] == 2
+    assert set(SHIELD_INFO_KEYS) <= set(written["policy_info"])
+    assert "shield_decisions 2" in capsys.readouterr().out
+
+
+def test_summarize_interventions():
+    assert summarize_interventions([{}, {"fallbacks": 1}]) is None
+    info = dict.fromkeys(SHIELD_INFO_KEYS, 0)
+    runs = [{**info, "shield_decisions": 10, "shield_filtered": 2, "shield_mpc_fallbacks": 1}, {**info,
+            "shield_decisions": 10}]
+    total = summarize_interventions(runs)
+    assert total["decisions"] == 20 and total["filtered"] == 2 and total["runs_filtered"] == 1
+    assert total["runs_with_mpc_fallback"] == 1 and total["filtered_fraction"] == pytest.approx(0.1)
+
+
+def test_benchmark_shield_rows(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from pathlib import Path
+
+    from agents import benchmark
+
+    model = sorted((Path(__file__).resolve().parents[1] / "agents" / "models").glob("*.zip"))[0]
+    results = benchmark.run([str(model)], ["converging-3"], runs=1, mpc_runs=1, out=tmp_path, reuse_mpc=None,
+                            workers=1, progress=False, shield=True)
+    assert set(results["converging-3"]) == {"nf", "mpc", model.stem, f"{model.stem}+shield"}
+    assert results["converging-3"][f"{model.stem}+shield"]["shield"]["runs"] == 1
+    assert "shield" not in results["converging-3"][model.stem]
+    header, _, *rows = benchmark.table(results).splitlines()
+    assert "decision p99" in header and "MPC fallbacks" in header
+    assert all(row.count("|") == header.count("|") for row in rows)
+    shielded_row = next(row for row in rows if "+shield" in row)
+    assert " of " in shielded_row.split("|")[-2]
