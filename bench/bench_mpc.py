@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -91,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     ratios = []
+    load = [os.getloadavg()[0]]
     for n in (4, 6):
         runs = [seed_run(n, seed, args.repeats) for seed in range(args.seeds)]
         summary = {}
@@ -120,6 +122,7 @@ def main(argv: list[str] | None = None) -> int:
             f"| {summary['exhaustive'][2] / summary['lazy'][2]:.1f}× |"
         )
         print(ratios[-1], flush=True)
+        load.append(os.getloadavg()[0])
     text = "\n".join(
         [
             "## MCMC-MPC at the paper's settings",
@@ -128,11 +131,12 @@ def main(argv: list[str] | None = None) -> int:
             f"T = 5 min, dt = 5 s, converging-N under wind (σ = 5.17 m/s), seeds 0..{args.seeds - 1}, one "
             f"fresh process per seed: one episode with the default lazy search (peak memory read after it), "
             f"then {args.repeats} episodes of each search alternately; every decision timed warm, the "
-            f"numba warm-up reported apart; {machine()}.",
+            f"numba warm-up reported apart; {machine()}; 1-min load average {min(load):.1f}–{max(load):.1f} "
+            "during the run (other jobs on the machine slow both searches; their ratio is what to quote).",
             "",
             *rows,
             "",
-            "Exhaustive over lazy, measured side by side (the figure to quote on a shared machine):",
+            "Exhaustive over lazy, measured side by side:",
             "",
             "| aircraft | per decision, mean | per decision, median | episode |",
             "|---:|---:|---:|---:|",
