@@ -40,6 +40,9 @@ CASES = {
         dict(extractions=200, wind_model="sampled", acceptance="table-i", cost_exponent=2.0), {},
     ),
     "sampling instants": (lambda: converging(3), 1, dict(extractions=200, constraint_check="sampling-instants"), {}),
+    "K = 1": (lambda: converging(3), 0, dict(extractions=1), dict(max_time_s=1800.0)),
+    "K = 2, horizon 1": (lambda: converging(3), 0, dict(extractions=2, horizon=1), dict(max_time_s=1800.0)),
+    "horizon 6": (lambda: converging(3), 2, dict(extractions=100, horizon=6), {}),
 }
 
 
