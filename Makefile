@@ -77,6 +77,7 @@ bench: $(BIN)/atc-nf
 	$(BIN)/python bench/integration_step_study.py --write
 	$(BIN)/python bench/bench_mpc.py --write
 	$(BIN)/python bench/bench_envs.py --write
+	$(BIN)/python bench/bench_shield.py --write
 
 reproduce: $(BIN)/atc-nf
 	$(BIN)/atc-nf reproduce --runs 1000

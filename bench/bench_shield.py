@@ -1,0 +1,130 @@
+"""The safety filter's decision latency: each shipped agent alone and inside the filter,
+side by side on the same decisions.
+
+For every model, episodes of the scenario (converging-4 by default) on seeds
+0..SEEDS-1 are flown inside ``atc_nf_env.shield.SafetyFilter`` (one untimed episode first:
+numba's cache and the model's first call are kept out of the figures). At every decision
+the agent alone is timed on the decision's view, then the filter's whole decision (which
+calls the agent again, predicts two periods and, if unsafe, the alternatives or the MPC).
+Reported: mean, median, p99 and max over every decision for both, the median of the
+decisions the filter let through unchanged, and how many it changed or left to the MPC.
+
+Goal (issue: agents safe on every run): a shielded SB3 agent on converging-4 decides in
+≤ 150 µs on average, ≤ 2 ms at the 99th percentile.
+
+Run: python bench/bench_shield.py [--seeds 50] [--scenario converging-4] [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from _report import machine, write_section  # bench/ is on sys.path when run as a script
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def measure(model: str, scenario_name: str, seeds: int) -> dict:
+    from atc_nf_env.episode import run_episode
+    from atc_nf_env.policy import make_policy
+    from atc_nf_env.scenarios import make_scenario
+    from atc_nf_env.shield import SafetyFilter
+
+    inner = make_policy(model)
+    shield = SafetyFilter(inner)
+    alone: list[float] = []
+    shielded: list[float] = []
+    changed: list[bool] = []
+
+    class SideBySide:
+        name = "side-by-side"
+
+        def reset(self, scenario, config, seed=None) -> None:
+            shield.reset(scenario, config, seed)
+
+        def act(self, view):
+            t0 = time.perf_counter()
+            inner.act(view)
+            t1 = time.perf_counter()
+            before = shield.episode_info()["shield_filtered"]
+            t2 = time.perf_counter()
+            waypoints = shield.act(view)
+            t3 = time.perf_counter()
+            alone.append(t1 - t0)
+            shielded.append(t3 - t2)
+            changed.append(shield.episode_info()["shield_filtered"] > before)
+            return waypoints
+
+    run_episode(SideBySide(), make_scenario(scenario_name, seed=0), seed=0)  # warm-up, untimed
+    alone.clear(), shielded.clear(), changed.clear()
+    fallbacks = 0
+    for seed in range(seeds):
+        run_episode(SideBySide(), make_scenario(scenario_name, seed=seed), seed=seed)
+        fallbacks += shield.episode_info()["shield_mpc_fallbacks"]
+    a, s, c = np.array(alone), np.array(shielded), np.array(changed)
+    return {
+        "alone": (a.mean(), np.median(a), np.percentile(a, 99), a.max()),
+        "shielded": (s.mean(), np.median(s), np.percentile(s, 99), s.max()),
+        "passed_median": float(np.median(s[~c])) if (~c).any() else float("nan"),
+        "decisions": len(s),
+        "changed": int(c.sum()),
+        "fallbacks": fallbacks,
+    }
+
+
+def _us(seconds: float) -> str:
+    return f"{seconds * 1e3:.2f} ms" if seconds >= 1e-3 else f"{seconds * 1e6:.0f} µs"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=50)
+    parser.add_argument("--scenario", default="converging-4")
+    parser.add_argument("--models", default=",".join(str(p.relative_to(ROOT)) for p in
+                                                     sorted((ROOT / "agents" / "models").glob("*.zip"))))
+    parser.add_argument("--write", action="store_true", help="write the table into BENCHMARKS.md")
+    args = parser.parse_args(argv)
+    if args.seeds < 1:
+        parser.error("--seeds must be >= 1")
+    rows = [
+        "| model | agent alone: mean / median / p99 / max | shielded: mean / median / p99 / max "
+        "| shielded, decisions passed unchanged: median | decisions changed | MPC fallbacks |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    load = [os.getloadavg()[0]]
+    for model in [m for m in args.models.split(",") if m]:
+        r = measure(model, args.scenario, args.seeds)
+        rows.append(
+            f"| {Path(model).stem} | {' / '.join(_us(x) for x in r['alone'])} "
+            f"| {' / '.join(_us(x) for x in r['shielded'])} | {_us(r['passed_median'])} "
+            f"| {r['changed']} of {r['decisions']} | {r['fallbacks']} |"
+        )
+        print(rows[-1], flush=True)
+        load.append(os.getloadavg()[0])
+    text = "\n".join([
+        "## Safety filter: decision latency",
+        "",
+        f"`python bench/bench_shield.py --seeds {args.seeds} --scenario {args.scenario}` — each shipped agent "
+        f"alone and inside `atc_nf_env.shield.SafetyFilter` (two-period prediction, MPC fallback), timed side by "
+        f"side on every decision of seeds 0..{args.seeds - 1} (σ = 5.17 m/s) after an untimed warm-up episode; "
+        f"{machine()}; 1-min load average {min(load):.1f}–{max(load):.1f} during the run (other jobs inflate "
+        "means and tails; the medians side by side are what to quote on a shared machine). Goal: shielded mean "
+        "≤ 150 µs, p99 ≤ 2 ms on converging-4.",
+        "",
+        *rows,
+    ])
+    print(text)
+    if args.write:
+        write_section("shield", text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    sys.exit(main())
