@@ -54,6 +54,12 @@ class SimConfig:
         substep_s: longest sub-step, s, of an integration step in which a command
             saturates at ``airspeed_cap_kt`` (the law's singularity, see the kernel):
             such a step is flown in ceil(dt_s / substep_s) sub-steps.
+        right_turn_deg: the right-hand rule at the law's singularity (kernel guard 9):
+            where the 1/P_i term of (5a) exceeds ``right_turn_from_kt`` the desired
+            heading θ_nh is turned to the right, by this angle, deg, once the term reaches
+            ``right_turn_full_kt`` (smoothly in between); 0 turns the rule off.
+        right_turn_from_kt, right_turn_full_kt: where the rule starts to act and where
+            it acts in full, kt of the 1/P_i term.
     """
 
     k: float = 2.0
@@ -77,6 +83,9 @@ class SimConfig:
     grad_floor: float = 1e-12
     dphi_dt_gain: float = 1.0
     substep_s: float = 0.1
+    right_turn_deg: float = 90.0
+    right_turn_from_kt: float = 100.0
+    right_turn_full_kt: float = 400.0
 
     def __post_init__(self) -> None:
         for field in fields(self):
@@ -94,6 +103,13 @@ class SimConfig:
         for name in ("k_u", "k_z", "f_a0"):
             if getattr(self, name) < 0:
                 raise ValueError(f"SimConfig.{name} = {getattr(self, name)!r}: must be >= 0")
+        if not 0 <= self.right_turn_deg <= 180:
+            raise ValueError(f"SimConfig.right_turn_deg = {self.right_turn_deg!r}: must lie in [0, 180]")
+        if not 0 <= self.right_turn_from_kt < self.right_turn_full_kt:
+            raise ValueError(
+                f"SimConfig: need 0 <= right_turn_from_kt < right_turn_full_kt, got "
+                f"{self.right_turn_from_kt}, {self.right_turn_full_kt}"
+            )
         if self.sensing_radius_nm <= 2 * self.aircraft_radius_nm:
             raise ValueError(
                 f"SimConfig.sensing_radius_nm = {self.sensing_radius_nm!r}: must exceed the "
@@ -161,6 +177,9 @@ class SimConfig:
         params[nf.P_GRAD_FLOOR] = self.grad_floor
         params[nf.P_DPHI_DT_GAIN] = self.dphi_dt_gain
         params[nf.P_SUBSTEP] = self.substep_s
+        params[nf.P_RIGHT_TURN] = math.radians(self.right_turn_deg)
+        params[nf.P_RIGHT_TURN_FROM] = self.right_turn_from_kt
+        params[nf.P_RIGHT_TURN_FULL] = self.right_turn_full_kt
         return params
 
 

@@ -44,11 +44,9 @@ leaves undefined; none acts in an ordinary flight):
 8. Sub-steps at the singularity. Near a critical point of Φ_i with neighbours closing
    in (∂Φ_i/∂t > 0, |P_i| → 0; the converging encounters without wind reach one), the
    1/P_i term saturates and its sign follows the sign of P_i: u_i = −u_cap sgn(P_i).
-   Where Φ_i has a minimum along the heading this drives P_i back to 0 from either
-   side, a sliding motion along P_i = 0 whose airspeed is bounded (Filippov's
-   convex combination of ±u_cap). A step of dt overshoots that surface by up to
-   u_cap · dt (2 nm at 5 s) and the sign then alternates step by step, so the flight
-   depended on dt. A step in which any command saturates is therefore flown in
+   A step of dt overshoots P_i = 0 by up to u_cap · dt (2 nm at 5 s) and the sign then
+   alternates step by step, so the flight depended on dt. A step in which any command
+   saturates, or in which the right-hand rule acts (guard 9), is therefore flown in
    ceil(dt / ``substep_s``) explicit-Euler sub-steps, each with fresh commands; the
    overshoot falls to u_cap · substep_s (0.04 nm at 0.1 s) whatever dt is. The outer
    grid is kept: traces, records and violation counts stay per integration step
@@ -57,6 +55,47 @@ leaves undefined; none acts in an ordinary flight):
    Where the world stops at this step anyway (``stop_on_violation`` and a command
    outside the envelope, as in the MPC's candidates) the step is not refined: its
    first sub-step has the same command and the same verdict.
+9. The right-hand rule at the saddle. Why sub-steps alone do not converge: the
+   converging encounters are symmetric under reflection about each aircraft's radial
+   line, and so is the law, so the exact flow keeps every aircraft on its line. There
+   ∇_iΦ_i is radial, and it vanishes where the neighbours' repulsion balances the pull
+   of the destination: P_i = 0 at a critical point of Φ_i, while ∂Φ_i/∂t > 0. The law
+   has no solution there (even solved implicitly in the u_j, the common airspeed u of
+   the N aircraft obeys u (g − c) = F g, g = |∇_iΦ_i| and c = Σ_j ∇_jΦ_i · J_j, which
+   blows up as g → c, with no solution beyond): the N aircraft meet at a saddle of the
+   joint flow. With the direction of ∇_iΦ_i undefined, θ_nh swings by up to π within a
+   second and u_i by ±u_cap, so which way each aircraft leaves its line is decided by
+   rounding errors of 1e-14 nm, and the scramble that follows differed with dt by up
+   to 2 nm of minimum separation. A rule at this one point is needed, not a finer
+   step. We take the rules of the air (ICAO Annex 2, 3.2.2.2: aircraft approaching
+   head-on each alter heading to the right): where the 1/P_i term, (∂Φ_i/∂t)⁺ / |P_i|,
+   exceeds ``right_turn_from_kt`` the desired heading θ_nh is turned to the right by
+   w_i · ``right_turn_deg``, the airspeed blends toward the feedback magnitude F_i,
+   u_i = (1 − w_i) u_i^(5a) + w_i F_i, and the neighbours' airspeeds in ∂Φ_i/∂t are
+   blended the same way (−sgn(P_j) F_j flips at random where P_j ≈ 0). The weight w_i
+   rises from 0 to 1 as a C¹ smoothstep of the term up to ``right_turn_full_kt``, a
+   function of the state and not switched at a grid instant, so the heading's θ̇_nh
+   feed-forward turns the aircraft as fast as w_i rises, and the flow is again a
+   Lipschitz ODE off P_i = 0; the reflection is broken by the law. Where w_i = 0
+   nothing changes, bit for bit: an ordinary flight, whose 1/P_i term stays below the
+   threshold, and the MPC's candidates (seeds 0-2 of converging-4 and -6 fly identical
+   trajectories with the rule on and off).
+   Measured (``bench/integration_step_study.py``, NF alone, converging-3 ... 8 without
+   wind, default physics, dt = 5 ... 0.625 s): the largest move of the minimum
+   separation on halving dt fell from 2.1 nm to 0.3 nm, with no loss of separation.
+   Why it acts from 100 kt and turns θ_nh by up to 90°: acting only beyond the
+   envelope (from 540 kt) leaves about half a second before the blow-up, and the
+   moves stayed at 1.6-1.7 nm; a standard-rate turn (3°/s added to ω_i, from 540 kt)
+   is overridden by the ±π swings of θ_nh, and rounding still decided (1.2 nm);
+   from 100 kt, a rate of 3-30°/s, or a turn toward 90° right of the bearing to the
+   waypoint instead of θ_nh, lost separation in some encounters.
+   What is left: at dt ≤ 1.25 s every aircraft of converging-3 ... 8 leaves its line
+   to the right; at 2.5 and 5 s the 1/P_i term can cross the rule's whole ramp within
+   one step, and in some encounters the first break is still to the left. The rule
+   keeps the encounter's rotation symmetry, and the pinwheel it flies splits by
+   rounding (4 aircraft: two turn away first, relieving the other two), which also
+   decides on which side of the centre they pass. The goal of < 0.2 nm is not met
+   for every N (table in BENCHMARKS.md).
 
 An aircraft that arrives (its path passes within Δ of its destination, checked on
 every integration step's segment) or leaves is frozen and stops being an obstacle.
@@ -136,7 +175,9 @@ C_COS = 6  # cos θ_i
 C_SIN = 7  # sin θ_i
 C_NEAR = 8  # neighbours within the sensing radius
 C_VIOLATED = 9  # 1 once the aircraft's airspeed left the envelope during this step
-N_COMMAND = 10
+C_DPHI_DT = 10  # ∂Φ_i/∂t of (5a), per s
+C_RIGHT_TURN = 11  # weight in [0, 1] of the right-hand rule (guard 9)
+N_COMMAND = 12
 
 # Record fields (optional per-step recording).
 R_X, R_Y, R_HEADING, R_AIRSPEED, R_FLEW = 0, 1, 2, 3, 4  # R_FLEW: 1 if it flew that step
@@ -201,6 +242,22 @@ def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py:
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _right_turn_weight(dphi_dt: float, p_floored: float, params: np.ndarray) -> float:
+    """Weight in [0, 1] of the right-hand rule (guard 9): 0 while the 1/P_i term of (5a),
+    (∂Φ_i/∂t)⁺ / |P_i| in kt, is below ``right_turn_from_kt``, 1 from ``right_turn_full_kt``
+    on, a C¹ smoothstep between (so the flow it defines stays Lipschitz)."""
+    angle = params[nf.P_RIGHT_TURN]
+    if angle <= 0.0 or dphi_dt <= 0.0:
+        return 0.0
+    from_kt = params[nf.P_RIGHT_TURN_FROM]
+    term_kt = dphi_dt / abs(p_floored)
+    if term_kt <= from_kt:
+        return 0.0
+    x = min((term_kt - from_kt) / (params[nf.P_RIGHT_TURN_FULL] - from_kt), 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
 def _commands(
     state: np.ndarray,
     pos: np.ndarray,
@@ -212,8 +269,9 @@ def _commands(
     inv_dt: float,
 ) -> tuple[bool, bool, bool]:
     """The law's commands (5a)-(5b) of every flying aircraft from the current positions,
-    into ``command``. Returns (any aircraft flying, any command saturated at the cap
-    (guard 2), any command outside the envelope)."""
+    into ``command``. Returns (any aircraft flying, the step is to be refined: a command
+    saturated at the cap (guard 2) or under the right-hand rule (guard 9), any command
+    outside the envelope)."""
     n = state.shape[0]
     inv_len = 1.0 / params[P_LENGTH]
     k_u = params[P_K_U]
@@ -268,11 +326,13 @@ def _commands(
         command[i, C_P] = sgn_p * max(abs(p_dir), p_floor)  # guard 1
         command[i, C_COS] = cos_h
         command[i, C_SIN] = sin_h
-    saturated = False
+    refine = False
     outside = False
     if not any_flying:
-        return any_flying, saturated, outside
-    # Pass 2: the ∂Φ_i/∂t term of (5a) with the neighbours' feedback airspeeds.
+        return any_flying, refine, outside
+    # Pass 2: the ∂Φ_i/∂t term of (5a) with the neighbours' feedback airspeeds, and the
+    # weight of the right-hand rule (guard 9) that the 1/P_i term it gives sets.
+    any_turning = False
     for i in range(n):
         if status[i] != FLYING:
             continue
@@ -283,14 +343,48 @@ def _commands(
             along_j = grad[i, j, 0] * command[j, C_COS] + grad[i, j, 1] * command[j, C_SIN]
             dphi_dt += command[j, C_U_FEEDBACK] * along_j
         dphi_dt *= dphi_dt_gain
+        command[i, C_DPHI_DT] = dphi_dt
+        command[i, C_RIGHT_TURN] = _right_turn_weight(dphi_dt, command[i, C_P], params)
+        any_turning |= command[i, C_RIGHT_TURN] > 0.0
+    if any_turning:
+        # A neighbour under the rule flies forward at F_j, not at −sgn(P_j) F_j, whose
+        # sign flips at random where P_j ≈ 0: ∂Φ_i/∂t is taken again with that airspeed.
+        for i in range(n):
+            if status[i] != FLYING:
+                continue
+            dphi_dt = 0.0
+            for j in range(n if command[i, C_NEAR] > 0 else 0):
+                if j == i or status[j] != FLYING:
+                    continue
+                along_j = grad[i, j, 0] * command[j, C_COS] + grad[i, j, 1] * command[j, C_SIN]
+                w_j = command[j, C_RIGHT_TURN]
+                u_j = command[j, C_U_FEEDBACK]
+                dphi_dt += ((1.0 - w_j) * u_j + w_j * abs(u_j)) * along_j
+            command[i, C_DPHI_DT] = dphi_dt * dphi_dt_gain
+    for i in range(n):
+        if status[i] != FLYING:
+            continue
+        dphi_dt = command[i, C_DPHI_DT]
         u = command[i, C_U_FEEDBACK] - (dphi_dt + abs(dphi_dt)) / (2.0 * command[i, C_P])
         if not -u_cap < u < u_cap:
-            saturated = True
+            refine = True
             u = min(max(u, -u_cap), u_cap)  # guard 2
+        w = _right_turn_weight(dphi_dt, command[i, C_P], params) if any_turning else 0.0
+        if w > 0.0:  # guard 9
+            refine = True
+            u = (1.0 - w) * u + w * abs(command[i, C_U_FEEDBACK])
+            theta_nh = command[i, C_THETA_NH] - w * params[nf.P_RIGHT_TURN]
+            theta_nh_rate = 0.0
+            if state[i, S_FRESH] == 0.0:
+                jump = _wrap(theta_nh - state[i, S_THETA_NH])
+                if abs(jump) <= _HALF_PI:  # guard 5
+                    theta_nh_rate = jump * (max(state[i, S_LAST_SUBSTEPS], 1.0) * inv_dt)
+            command[i, C_THETA_NH] = theta_nh
+            command[i, C_OMEGA] = -k_theta * _wrap(state[i, S_HEADING] - theta_nh) + theta_nh_rate
         if not u_min <= u <= u_max:
             outside = True
         command[i, C_U] = u
-    return any_flying, saturated, outside
+    return any_flying, refine, outside
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
@@ -353,7 +447,7 @@ def _advance_world(
 
     step = 0
     while step < n_steps:
-        any_flying, saturated, outside = _commands(state, pos, status, grad, command, nf_consts, params, inv_dt)
+        any_flying, refine, outside = _commands(state, pos, status, grad, command, nf_consts, params, inv_dt)
         if not any_flying:
             break
         # Step-size control at the law's singularity: where a command is saturated
@@ -364,7 +458,7 @@ def _advance_world(
         # converges as dt shrinks. Not where the world stops at this step anyway: its
         # first sub-step has the same command, outside the envelope.
         n_sub = 1
-        if saturated and not (stop_on_violation and outside):
+        if refine and not (stop_on_violation and outside):
             n_sub = n_refined
         h = dt / n_sub
         nm_per_kt_step = h / SECONDS_PER_HOUR

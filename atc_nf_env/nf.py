@@ -69,7 +69,10 @@ P_GRAD_FLOOR = 19  # below this ‖∇Φ‖ the gradient has no direction (guard
 P_DPHI_DT_GAIN = 20  # weight of ∂Φ_i/∂t in (5a): 1 is the paper's law
 P_BARRIER = 21  # barrier distance (centre to centre) of the proximity function, nm
 P_SUBSTEP = 22  # longest sub-step of an integration step refined at the singularity, s
-N_PARAMS = 23
+P_RIGHT_TURN = 23  # right-hand rule at the singularity: largest rotation of θ_nh, rad (0: off)
+P_RIGHT_TURN_FROM = 24  # 1/P_i term of (5a), kt, where the right-hand rule starts to act
+P_RIGHT_TURN_FULL = 25  # 1/P_i term of (5a), kt, from which it acts in full
+N_PARAMS = 26
 
 # Status of an aircraft (stored as float in the state array).
 FLYING = 0.0

@@ -1,0 +1,101 @@
+"""The NF alone at the saddle of the converging encounters without wind (kernel guards 8
+and 9): its minimum separation converges as the step shrinks, it never loses
+separation, and the right-hand rule leaves ordinary flights bit for bit unchanged."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from atc_nf_env.config import SimConfig
+from atc_nf_env.episode import run_episode
+from atc_nf_env.kernel import S_X, S_Y, advance
+from atc_nf_env.scenarios import Scenario, converging
+from atc_nf_env.simulation import initial_state
+
+from baselines import MCMCMPC, NFDirect
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+from integration_step_study import saddle_separations  # noqa: E402
+
+RULE_OFF = {"right_turn_deg": 0.0}
+
+
+@pytest.mark.parametrize(
+    "n, steps",
+    [(4, (2.5, 1.25)), (5, (5.0, 2.5, 1.25)), (6, (5.0, 2.5, 1.25))],
+)
+def test_halving_the_step_moves_the_minimum_separation_by_less_than_0_2_nm(n, steps):
+    # Without the right-hand rule these moved by 1.4 nm (4 aircraft), 0.7 and 1.5 nm.
+    runs = saddle_separations("default", {}, n, steps)
+    seps = [sep for sep, _, _ in runs]
+    assert all(los == 0 and home for _, los, home in runs), runs
+    assert np.abs(np.diff(seps)).max() < 0.2, seps
+
+
+def test_every_aircraft_first_leaves_its_line_to_the_right():
+    # The exact flow keeps each aircraft on its radial line; the first departure from it
+    # is the law's (to the right of the inbound track), not rounding's.
+    n, dt = 6, 1.25
+    config = SimConfig().replace(dt_s=dt)
+    result = run_episode(
+        NFDirect(), converging(n), seed=0, wind_kt=np.zeros(2), config=config, max_time_s=1800, record_every=1
+    )
+    angles = 2 * np.pi * np.arange(n) / n
+    pos = result.records[:, :, :2]
+    right_of_track = -pos[:, :, 0] * np.sin(angles) + pos[:, :, 1] * np.cos(angles)
+    first = int(np.argmax(np.abs(right_of_track).max(axis=1) > 0.05))
+    assert first > 0
+    assert (right_of_track[first] > 0).all(), right_of_track[first]
+
+
+def _crossing_pair_end(config: SimConfig) -> np.ndarray:
+    scenario = Scenario(
+        name="crossing",
+        start_xy=np.array([[-250.0, -8.0], [8.0, -250.0]]),
+        start_heading=np.array([0.0, math.pi / 2]),
+        dest_xy=np.array([[700.0, -8.0], [8.0, 700.0]]),
+        dest_heading=np.array([0.0, math.pi / 2]),
+    )
+    params = config.to_params(scenario.workspace_radius_nm)
+    state = initial_state(scenario)
+    for _ in range(13):
+        pos = state[0, :, S_X : S_Y + 1]
+        to_dest = scenario.dest_xy - pos
+        waypoints = pos + 100.0 * to_dest / np.linalg.norm(to_dest, axis=1, keepdims=True)
+        advance(state, waypoints[None], np.array([[6.0, 8.0]]), 300.0, params)
+    return state
+
+
+def test_the_rule_leaves_ordinary_flights_bit_for_bit_unchanged():
+    # A pair crossing about 11 nm apart (the neighbour terms active), and the MPC.
+    assert np.array_equal(_crossing_pair_end(SimConfig()), _crossing_pair_end(SimConfig().replace(**RULE_OFF)))
+    for n in (4, 6):
+        on = run_episode(MCMCMPC(), converging(n), seed=0, record_every=1)
+        off = run_episode(MCMCMPC(), converging(n), seed=0, config=SimConfig().replace(**RULE_OFF), record_every=1)
+        assert np.array_equal(on.records, off.records)
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [("right_turn_deg", -1.0), ("right_turn_deg", 181.0), ("right_turn_from_kt", 400.0), ("right_turn_full_kt", 50.0)],
+)
+def test_an_impossible_right_hand_rule_is_rejected(field, value):
+    with pytest.raises(ValueError, match="must lie in|right_turn_from_kt < right_turn_full_kt"):
+        SimConfig().replace(**{field: value})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("n", [3, 4, 5, 6, 7, 8])
+def test_no_loss_of_separation_and_bounded_moves_at_every_step_up_to_5_s(n):
+    # What the kernel achieves today (BENCHMARKS.md, integration step): no loss of
+    # separation, and moves on halving of at most 0.3 nm. The goal, < 0.2 nm, is met
+    # for converging-5 and -6 only.
+    runs = saddle_separations("default", {}, n, (5.0, 2.5, 1.25, 0.625))
+    assert all(los == 0 and home for _, los, home in runs), runs
+    seps = [sep for sep, _, _ in runs]
+    assert np.abs(np.diff(seps)).max() < 0.35, seps
