@@ -60,10 +60,13 @@ def test_calibration_figure(tmp_path):
 @pytest.mark.parametrize("n", [3, 4, 5, 6, 7, 8])
 def test_without_wind_the_nf_alone_never_loses_separation_in_the_converging_encounters(n):
     # The symmetric encounter drives every aircraft toward a critical point of its NF
-    # where the 1/P_i term saturates (kernel guard 8); flown in sub-steps, it stays
-    # separated at the default step as the law promises.
+    # where the 1/P_i term saturates (kernel guard 8) unless the right-hand rule turns
+    # them first (guard 9); flown in sub-steps, it stays separated at the default step
+    # as the law promises.
+    without_rule = SimConfig().replace(right_turn_deg=0.0)
+    saddle = run_episode(NFDirect(), converging(n), seed=0, wind_sigma_mps=0.0, config=without_rule).metrics
+    assert saddle.airspeed_max_kt == SimConfig().airspeed_cap_kt  # the saddle is on this path
     m = run_episode(NFDirect(), converging(n), seed=0, wind_sigma_mps=0.0).metrics
-    assert m.airspeed_max_kt == SimConfig().airspeed_cap_kt  # the saddle was reached
     assert m.los_count == 0
     assert m.min_separation_nm is not None and m.min_separation_nm > 7.0
     assert all(m.arrived)
