@@ -154,6 +154,9 @@ def _step_trace(result: Any, scenario: Any, every_s: float) -> dict[str, Any]:
     config = SimConfig()
     # Row 0 is the state before the first step; row r > 0 is the state after step r.
     speeds = result.records[1:, :, kernel.R_AIRSPEED]
+    # A step flown in sub-steps (kernel guards 8-9) can reach its extremes between its ends.
+    lows = result.records[1:, :, kernel.R_AIRSPEED_MIN]
+    highs = result.records[1:, :, kernel.R_AIRSPEED_MAX]
     flew = result.records[1:, :, kernel.R_FLEW] > 0
     step_start_s = np.arange(speeds.shape[0]) * config.dt_s
     window = np.floor(step_start_s / every_s + 1e-9).astype(np.int64)
@@ -162,13 +165,13 @@ def _step_trace(result: Any, scenario: Any, every_s: float) -> dict[str, Any]:
     for i in range(speeds.shape[1]):
         rows: list[list[float] | None] = [None] * n_windows
         for w in range(n_windows):
-            values = speeds[(window == w) & flew[:, i], i]
-            if values.size:
-                rows[w] = [round(float(values.min()), 2), round(float(values.mean()), 2),
-                           round(float(values.max()), 2)]
+            in_window = (window == w) & flew[:, i]
+            if in_window.any():
+                rows[w] = [round(float(lows[in_window, i].min()), 2), round(float(speeds[in_window, i].mean()), 2),
+                           round(float(highs[in_window, i].max()), 2)]
         bands.append(rows)
     flown = speeds[flew]
-    outside = flew & ((speeds < config.airspeed_min_kt) | (speeds > config.airspeed_max_kt))
+    outside = flew & ((lows < config.airspeed_min_kt) | (highs > config.airspeed_max_kt))
     decision_of_step = np.searchsorted(result.decision_times_s, step_start_s + 1e-9, side="right") - 1
     final = result.records[-1, :, kernel.R_X : kernel.R_Y + 1]
     short = np.hypot(*(final - scenario.dest_xy).T)

@@ -177,11 +177,16 @@ C_NEAR = 8  # neighbours within the sensing radius
 C_VIOLATED = 9  # 1 once the aircraft's airspeed left the envelope during this step
 C_DPHI_DT = 10  # ∂Φ_i/∂t of (5a), per s
 C_RIGHT_TURN = 11  # weight in [0, 1] of the right-hand rule (guard 9)
-N_COMMAND = 12
+C_STEP_MIN = 12  # lowest airspeed over the sub-steps flown in this step, kt
+C_STEP_MAX = 13  # highest, kt
+N_COMMAND = 14
 
 # Record fields (optional per-step recording).
 R_X, R_Y, R_HEADING, R_AIRSPEED, R_FLEW = 0, 1, 2, 3, 4  # R_FLEW: 1 if it flew that step
-N_RECORD = 5
+# Lowest and highest airspeed over the sub-steps of that step (a step refined at the
+# singularity can leave the envelope between its ends); R_AIRSPEED where it flew none.
+R_AIRSPEED_MIN, R_AIRSPEED_MAX = 5, 6
+N_RECORD = 7
 
 #: Value of ``Trace.min_separation_nm`` when fewer than two aircraft flew.
 NO_PAIR_SEPARATION_NM = 1.0e9
@@ -444,6 +449,8 @@ def _advance_world(
             record[0, i, R_HEADING] = state[i, S_HEADING]
             record[0, i, R_AIRSPEED] = state[i, S_AIRSPEED]
             record[0, i, R_FLEW] = 1.0 if status[i] == FLYING else 0.0
+            record[0, i, R_AIRSPEED_MIN] = state[i, S_AIRSPEED]
+            record[0, i, R_AIRSPEED_MAX] = state[i, S_AIRSPEED]
 
     step = 0
     while step < n_steps:
@@ -480,8 +487,14 @@ def _advance_world(
                 # The first sub-step this call flies: the extremes start there, not at
                 # the airspeed held before it (a scenario's start airspeed was never flown).
                 first_flown = steps_flown[i] == 0 and command[i, C_FLEW] == 0.0
-                command[i, C_FLEW] = 2.0  # flew this sub-step (1: flew an earlier one)
                 u = command[i, C_U]
+                if command[i, C_FLEW] == 0.0:
+                    command[i, C_STEP_MIN] = u
+                    command[i, C_STEP_MAX] = u
+                else:
+                    command[i, C_STEP_MIN] = min(command[i, C_STEP_MIN], u)
+                    command[i, C_STEP_MAX] = max(command[i, C_STEP_MAX], u)
+                command[i, C_FLEW] = 2.0  # flew this sub-step (1: flew an earlier one)
                 heading = state[i, S_HEADING]
                 x0 = state[i, S_X]
                 y0 = state[i, S_Y]
@@ -568,6 +581,9 @@ def _advance_world(
                 record[r, i, R_HEADING] = state[i, S_HEADING]
                 record[r, i, R_AIRSPEED] = state[i, S_AIRSPEED]
                 record[r, i, R_FLEW] = command[i, C_FLEW]
+                flew_step = command[i, C_FLEW] > 0.0
+                record[r, i, R_AIRSPEED_MIN] = command[i, C_STEP_MIN] if flew_step else state[i, S_AIRSPEED]
+                record[r, i, R_AIRSPEED_MAX] = command[i, C_STEP_MAX] if flew_step else state[i, S_AIRSPEED]
         if step_violation:
             violated = True
             if stop_on_violation:
