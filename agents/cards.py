@@ -222,11 +222,15 @@ def card(path: Path, summaries: list[tuple[Path, dict[str, Any]]]) -> str:
     lines += ["## Simulation settings the model depends on", ""]
     config = prov["sim_config"] if prov else SimConfig().as_dict()
     source = "recorded at training"
+    physics = ["atc_nf_env/kernel.py", "atc_nf_env/nf.py", "atc_nf_env/config.py"]
+    if prov and prov.get("git_commit"):
+        changed = _git("diff", "--name-only", prov["git_commit"], "HEAD", "--", *physics)
+        if changed:
+            source += "; " + ", ".join(f"`{c}`" for c in changed.split()) + " changed since that commit"
     if not prov:
         source = "not recorded at training; shown: today's `SimConfig()` defaults"
         added = (_git("log", "--diff-filter=A", "--format=%h", "--", str(path.relative_to(REPO_ROOT))) or "").split()
         if added:
-            physics = ["atc_nf_env/kernel.py", "atc_nf_env/nf.py", "atc_nf_env/config.py"]
             changed = _git("diff", "--name-only", added[-1], "HEAD", "--", *physics)
             if changed is not None:
                 source += ("; " + ", ".join(f"`{c}`" for c in changed.split()) + " changed since the commit that "
