@@ -5,7 +5,8 @@
 Every part of the project that moves aircraft calls this: the environments (B = 1 or
 the number of vector envs), the MPC (B = K candidates, one decision at once) and the
 Monte Carlo evaluator. It is compiled with numba, parallel over worlds, and allocates
-nothing inside its integration loop (its scratch comes from the caller).
+nothing inside its integration loop (its scratch comes from the caller). The checks of
+its inputs' values and of its result run in the same compiled call as the flight.
 
 Physics per aircraft i, integrated at ``dt_s`` with the second-order Adams-Bashforth
 scheme (explicit Euler on the first step under a new waypoint) (paper (1), (5)):
@@ -636,6 +637,100 @@ def _advance_batch(
         violated[b] = bad
 
 
+# Outcomes of ``_advance_checked``.
+_DONE = 0
+_BAD_INPUT = 1  # a NaN or inf in an input, or a parameter out of range: nothing was flown
+_NON_FINITE_RESULT = 2  # the integration produced a NaN or inf
+
+
+# No fast-math in the checks: under its no-NaN, no-inf flags they would be compiled away.
+@njit(cache=True, error_model="numpy")
+def _all_finite(values: np.ndarray) -> bool:
+    for value in values.flat:  # any layout (a params vector may be a strided view)
+        if not math.isfinite(value):
+            return False
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _advance_checked(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind: np.ndarray,
+    n_steps: int,
+    params: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    min_separation: np.ndarray,
+    steps_done: np.ndarray,
+    violated: np.ndarray,
+    record: np.ndarray,
+    record_every: int,
+) -> int:
+    """``advance``'s compiled part: the checks of the values (all finite, the parameters
+    that are divided by > 0) before anything moves, the flight, and the check that the
+    state came out finite; one call from Python instead of a dozen numpy reductions."""
+    if not (_all_finite(params) and _all_finite(state) and _all_finite(waypoints) and _all_finite(wind)):
+        return _BAD_INPUT
+    for index in _POSITIVE_INDEX:
+        if not params[index] > 0.0:
+            return _BAD_INPUT
+    if state.shape[0] == 1:
+        # One world needs no thread pool: waking it costs more than the work itself, and
+        # far more when other processes hold the cores.
+        sep, done, bad = _advance_world(
+            state[0],
+            waypoints[0],
+            wind[0, 0],
+            wind[0, 1],
+            n_steps,
+            params,
+            grad[0],
+            command[0],
+            min_airspeed[0],
+            max_airspeed[0],
+            violation_steps[0],
+            worst_excursion[0],
+            steps_flown[0],
+            los_pairs[0],
+            record[0],
+            record_every,
+        )
+        min_separation[0] = sep
+        steps_done[0] = done
+        violated[0] = bad
+    else:
+        _advance_batch(
+            state,
+            waypoints,
+            wind,
+            n_steps,
+            params,
+            grad,
+            command,
+            min_airspeed,
+            max_airspeed,
+            violation_steps,
+            worst_excursion,
+            steps_flown,
+            los_pairs,
+            min_separation,
+            steps_done,
+            violated,
+            record,
+            record_every,
+        )
+    if not _all_finite(state):
+        return _NON_FINITE_RESULT
+    return _DONE
+
+
 @dataclass
 class Trace:
     """What happened during one ``advance`` call, at integration-step resolution.
@@ -747,6 +842,98 @@ def _check_finite_result(state: np.ndarray) -> None:
         )
 
 
+def _check_inputs(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind_kt: np.ndarray,
+    seconds: float,
+    params: np.ndarray,
+    record_every: int,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """``advance``'s checks of its inputs, in order, raising on the first bad one; returns
+    (waypoints, wind_kt as contiguous float64 arrays, number of steps)."""
+    if not isinstance(state, np.ndarray):
+        raise TypeError(f"state is a {type(state).__name__}; expected a numpy array (B, N, {N_STATE}) float64")
+    if state.ndim != 3 or state.shape[2] != N_STATE or state.dtype != np.float64:
+        raise ValueError(
+            f"state has shape {state.shape} and dtype {state.dtype}; expected (B, N, {N_STATE}) float64"
+        )
+    if not (state.flags.c_contiguous and state.flags.writeable):
+        raise ValueError("state must be a C-contiguous, writeable array: it is advanced in place")
+    n_worlds, n_aircraft, _ = state.shape
+    for name, array in (("waypoints", waypoints), ("wind_kt", wind_kt)):
+        if np.iscomplexobj(array):
+            raise ValueError(f"{name} is complex; expected real numbers")
+    waypoints = np.ascontiguousarray(waypoints, dtype=np.float64)
+    wind_kt = np.ascontiguousarray(wind_kt, dtype=np.float64)
+    if waypoints.shape != (n_worlds, n_aircraft, 2):
+        raise ValueError(
+            f"waypoints has shape {waypoints.shape}; expected (B, N, 2) = ({n_worlds}, {n_aircraft}, 2)"
+        )
+    if wind_kt.shape != (n_worlds, 2):
+        raise ValueError(f"wind_kt has shape {wind_kt.shape}; expected (B, 2) = ({n_worlds}, 2)")
+    _check_params(params)
+    for name, array in (("state", state), ("waypoints", waypoints), ("wind_kt", wind_kt)):
+        if not np.isfinite(array).all():
+            raise ValueError(f"{name} contains NaN or inf; all values must be finite")
+    if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 0:
+        raise ValueError(f"record_every = {record_every!r}: must be an integer >= 0")
+    return waypoints, wind_kt, steps_for(seconds, float(params[nf.P_DT]))
+
+
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _quick_steps(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind_kt: np.ndarray,
+    seconds: float,
+    params: np.ndarray,
+    record_every: int,
+) -> int:
+    """The number of steps when the inputs have the exact types, shapes and layouts
+    ``advance`` needs (checked here in a few attribute look-ups), else −1: then
+    ``_check_inputs`` checks everything (and raises on what is wrong). Never raises.
+    The values themselves (finite, params in range) are checked in compiled code."""
+    if not (
+        type(state) is np.ndarray
+        and type(waypoints) is np.ndarray
+        and type(wind_kt) is np.ndarray
+        and type(params) is np.ndarray
+        and type(record_every) is int
+        and record_every >= 0
+        and state.dtype is _FLOAT64
+        and waypoints.dtype is _FLOAT64
+        and wind_kt.dtype is _FLOAT64
+        and params.dtype is _FLOAT64
+        and state.ndim == 3
+        and state.shape[2] == N_STATE
+        and waypoints.shape == (state.shape[0], state.shape[1], 2)
+        and wind_kt.shape == (state.shape[0], 2)
+        and params.shape == (nf.N_PARAMS,)
+        and state.flags.c_contiguous
+        and state.flags.writeable
+        and waypoints.flags.c_contiguous
+        and wind_kt.flags.c_contiguous
+    ):
+        return -1
+    key = (seconds, params[nf.P_DT])
+    n_steps = _STEPS_SEEN.get(key, -1) if type(seconds) is float else -1
+    if n_steps < 0 and 0.0 < key[1] < math.inf:
+        try:
+            n_steps = steps_for(seconds, float(key[1]))
+        except (TypeError, ValueError):
+            return -1
+        if type(seconds) is float and len(_STEPS_SEEN) < 64:
+            _STEPS_SEEN[key] = n_steps
+    return n_steps
+
+
+#: ``steps_for`` of the (seconds, dt) pairs seen (callers use one or two durations).
+_STEPS_SEEN: dict[tuple[float, float], int] = {}
+
+
 def advance(
     state: np.ndarray,
     waypoints: np.ndarray,
@@ -781,33 +968,10 @@ def advance(
             number of steps, or a NaN/inf in any input.
         FloatingPointError: if the integration produced a non-finite state.
     """
-    if not isinstance(state, np.ndarray):
-        raise TypeError(f"state is a {type(state).__name__}; expected a numpy array (B, N, {N_STATE}) float64")
-    if state.ndim != 3 or state.shape[2] != N_STATE or state.dtype != np.float64:
-        raise ValueError(
-            f"state has shape {state.shape} and dtype {state.dtype}; expected (B, N, {N_STATE}) float64"
-        )
-    if not (state.flags.c_contiguous and state.flags.writeable):
-        raise ValueError("state must be a C-contiguous, writeable array: it is advanced in place")
+    n_steps = _quick_steps(state, waypoints, wind_kt, seconds, params, record_every)
+    if n_steps < 0:
+        waypoints, wind_kt, n_steps = _check_inputs(state, waypoints, wind_kt, seconds, params, record_every)
     n_worlds, n_aircraft, _ = state.shape
-    for name, array in (("waypoints", waypoints), ("wind_kt", wind_kt)):
-        if np.iscomplexobj(array):
-            raise ValueError(f"{name} is complex; expected real numbers")
-    waypoints = np.ascontiguousarray(waypoints, dtype=np.float64)
-    wind_kt = np.ascontiguousarray(wind_kt, dtype=np.float64)
-    if waypoints.shape != (n_worlds, n_aircraft, 2):
-        raise ValueError(
-            f"waypoints has shape {waypoints.shape}; expected (B, N, 2) = ({n_worlds}, {n_aircraft}, 2)"
-        )
-    if wind_kt.shape != (n_worlds, 2):
-        raise ValueError(f"wind_kt has shape {wind_kt.shape}; expected (B, 2) = ({n_worlds}, 2)")
-    _check_params(params)
-    for name, array in (("state", state), ("waypoints", waypoints), ("wind_kt", wind_kt)):
-        if not np.isfinite(array).all():
-            raise ValueError(f"{name} contains NaN or inf; all values must be finite")
-    if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 0:
-        raise ValueError(f"record_every = {record_every!r}: must be an integer >= 0")
-    n_steps = steps_for(seconds, float(params[nf.P_DT]))
     grad, command = (scratch or _DEFAULT_SCRATCH).get(n_worlds, n_aircraft)
     n_record = n_steps // record_every + 1 if record_every > 0 else 0
     trace = Trace(
@@ -822,33 +986,7 @@ def advance(
         violated=np.empty(n_worlds, dtype=np.bool_),
         record=np.zeros((n_worlds, n_record, n_aircraft, N_RECORD)),
     )
-    if n_worlds == 1:
-        # One world needs no thread pool: waking it costs more than the work itself, and
-        # far more when other processes hold the cores.
-        sep, done, bad = _advance_world(
-            state[0],
-            waypoints[0],
-            wind_kt[0, 0],
-            wind_kt[0, 1],
-            n_steps,
-            params,
-            grad[0],
-            command[0],
-            trace.min_airspeed_kt[0],
-            trace.max_airspeed_kt[0],
-            trace.violation_steps[0],
-            trace.worst_excursion_kt[0],
-            trace.steps_flown[0],
-            trace.los_pairs[0],
-            trace.record[0],
-            max(record_every, 1),
-        )
-        trace.min_separation_nm[0] = sep
-        trace.steps_done[0] = done
-        trace.violated[0] = bad
-        _check_finite_result(state)
-        return trace
-    _advance_batch(
+    outcome = _advance_checked(
         state,
         waypoints,
         wind_kt,
@@ -868,7 +1006,12 @@ def advance(
         trace.record,
         max(record_every, 1),
     )
-    _check_finite_result(state)
+    if outcome == _BAD_INPUT:
+        _check_inputs(state, waypoints, wind_kt, seconds, params, record_every)  # raises, naming the input
+        raise AssertionError("the compiled and the Python checks of advance's inputs disagree")
+    if outcome == _NON_FINITE_RESULT:
+        _check_finite_result(state)  # raises, naming the world and the aircraft
+        raise AssertionError("the compiled and the Python checks of advance's result disagree")
     return trace
 
 

@@ -143,9 +143,11 @@ def main(argv: list[str] | None = None) -> int:
         "| B | N | frozen kernel (aircraft-steps/s) | current kernel (aircraft-steps/s) | current / frozen |",
         "|---:|---:|---:|---:|---:|",
     ]
+    ratios = {}
     for n_worlds in (1000, 1):
         for n_aircraft in (4, 6):
             result = measure(n_worlds, n_aircraft, args.rounds)
+            ratios[n_worlds, n_aircraft] = result["ratio"]
             rows.append(
                 f"| {n_worlds} | {n_aircraft} | {result['frozen'] / 1e6:.2f} M | "
                 f"{result['current'] / 1e6:.2f} M | {result['ratio']:.2f}× |"
@@ -168,10 +170,18 @@ def main(argv: list[str] | None = None) -> int:
             f"warm), apart from the figures above: frozen {compile_s['frozen']:.2f} s, current "
             f"{compile_s['current']:.2f} s.",
             "",
-            "Target: current / frozen >= 2 at B = 1000 and at B = 1. The kernel keeps only the "
-            "fast-math flags that cannot change a finite result, so that a world flies bit for bit "
-            "the same alone or in a batch of any size. Absolute rates move with the machine's "
-            "load; the ratios, measured side by side, are what to compare between runs.",
+            "Target: current / frozen >= 2 at B = 1000 and at B = 1: "
+            + ("met in this run. " if min(ratios.values()) >= 2.0 else
+               f"not met in this run (lowest ratio {min(ratios.values()):.2f}× at B = {min(ratios, key=ratios.get)[0]}, "
+               f"N = {min(ratios, key=ratios.get)[1]}). ")
+            + "What changed against the "
+            "frozen copy: `advance` checks its inputs' values and its result in the same compiled "
+            "call as the flight instead of a dozen numpy reductions per call (a gain at B = 1 only); "
+            "the current kernel also flies the right-hand rule at the NF's saddle (guard 9), work "
+            "the frozen copy does not do. The kernel "
+            "keeps only the fast-math flags that cannot change a finite result, so that a world "
+            "flies bit for bit the same alone or in a batch of any size. Absolute rates move with "
+            "the machine's load; the ratios, measured side by side, are what to compare between runs.",
         ]
     )
     print(text)

@@ -6,7 +6,10 @@ flies the same episodes twice in one process, once with the package's kernel and
 with ``atc_nf_env.kernel.advance`` replaced by the frozen copy under
 ``bench/frozen_kernel`` (every caller, the MPC's candidates included, goes through
 ``kernel.advance``), and prints the largest position difference between the two
-recorded trajectories, and whether the outcome (arrivals, safety) changed.
+recorded trajectories, and whether the outcome (arrivals, safety) changed. For scale,
+each episode is flown a third time by the frozen kernel from a start moved by one unit
+in the last place (the first aircraft's heading, ~4e-16 rad): how far a rounding-sized
+change carries that flight.
 
 Run: python bench/kernel_drift.py
 """
@@ -14,6 +17,7 @@ Run: python bench/kernel_drift.py
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from contextlib import contextmanager
 from typing import Iterator
@@ -51,9 +55,13 @@ def frozen_kernel() -> Iterator[None]:
         kernel.advance = current
 
 
-def fly(policy: str, scenario: str, seed: int) -> EpisodeResult:
-    return run_episode(make_policy(policy), make_scenario(scenario, seed=seed), seed=seed,
-                       config=SimConfig(), record_every=1)
+def fly(policy: str, scenario: str, seed: int, nudge: bool = False) -> EpisodeResult:
+    encounter = make_scenario(scenario, seed=seed)
+    if nudge:
+        heading = np.array(encounter.start_heading, dtype=float)
+        heading[0] = np.nextafter(heading[0], np.inf)
+        encounter = dataclasses.replace(encounter, start_heading=heading)
+    return run_episode(make_policy(policy), encounter, seed=seed, config=SimConfig(), record_every=1)
 
 
 def compare(a: EpisodeResult, b: EpisodeResult) -> tuple[float, int]:
@@ -80,11 +88,14 @@ def main(argv: list[str] | None = None) -> int:
         calls = FROZEN_CALLS[0]
         with frozen_kernel():
             old = fly(policy, scenario, seed)
+            nudged = fly(policy, scenario, seed, nudge=True)
         if FROZEN_CALLS[0] == calls:
             raise RuntimeError("the frozen kernel was not called: the comparison would compare a kernel with itself")
         drift, rows = compare(current, old)
+        sensitivity, _ = compare(nudged, old)
         print(f"{policy} {scenario} seed {seed}: max position difference {drift:.3g} nm over {rows} records; "
-              f"records {len(old.records)} (frozen) vs {len(current.records)} (current)")
+              f"records {len(old.records)} (frozen) vs {len(current.records)} (current); frozen kernel from a start "
+              f"one ulp away: {sensitivity:.3g} nm")
         print(f"  frozen : {outcome(old)}")
         print(f"  current: {outcome(current)}")
     return 0
