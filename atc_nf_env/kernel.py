@@ -72,7 +72,8 @@ leaves undefined; none acts in an ordinary flight):
    head-on each alter heading to the right): where the 1/P_i term, (∂Φ_i/∂t)⁺ / |P_i|,
    exceeds ``right_turn_from_kt`` the desired heading θ_nh is turned to the right by
    w_i · ``right_turn_deg``, the airspeed blends toward the feedback magnitude F_i,
-   u_i = (1 − w_i) u_i^(5a) + w_i F_i, and the neighbours' airspeeds in ∂Φ_i/∂t are
+   u_i = (1 − w_i) u_i^(5a) + w_i F_i, saturated again by guard 2 (F_i alone exceeds
+   the cap for a waypoint far enough away), and the neighbours' airspeeds in ∂Φ_i/∂t are
    blended the same way (−sgn(P_j) F_j flips at random where P_j ≈ 0). The weight w_i
    rises from 0 to 1 as a C¹ smoothstep of the term up to ``right_turn_full_kt``, a
    function of the state and not switched at a grid instant, so the heading's θ̇_nh
@@ -387,6 +388,8 @@ def _commands(
                     theta_nh_rate = jump * (max(state[i, S_LAST_SUBSTEPS], 1.0) * inv_dt)
             command[i, C_THETA_NH] = theta_nh
             command[i, C_OMEGA] = -k_theta * _wrap(state[i, S_HEADING] - theta_nh) + theta_nh_rate
+            # F_i itself can exceed the cap (a waypoint far away), so the blend can too.
+            u = min(max(u, -u_cap), u_cap)  # guard 2
         if not u_min <= u <= u_max:
             outside = True
         command[i, C_U] = u

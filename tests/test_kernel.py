@@ -46,6 +46,9 @@ def test_no_nan_or_inf_ever_leaves_the_kernel(n, seed, wind, waypoint_scale):
         assert np.isfinite(state).all()
         for name in ("min_airspeed_kt", "max_airspeed_kt", "worst_excursion_kt", "min_separation_nm"):
             assert np.isfinite(getattr(trace, name)).all(), name
+        # Guard 2 holds whatever other guard acts: no commanded airspeed beyond the cap.
+        assert (trace.max_airspeed_kt <= CONFIG.airspeed_cap_kt).all()
+        assert (trace.min_airspeed_kt >= -CONFIG.airspeed_cap_kt).all()
 
 
 def test_same_input_same_trajectory_bit_for_bit_and_across_batch_sizes():
