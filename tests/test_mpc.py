@@ -10,7 +10,7 @@ import pytest
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import run_episode
 from atc_nf_env.kernel import R_AIRSPEED, R_FLEW
-from atc_nf_env.scenarios import Scenario, converging
+from atc_nf_env.scenarios import Scenario, converging, make_scenario
 from atc_nf_env.simulation import Simulation
 from baselines import MCMCMPC, MPCSettings
 from baselines.mcmc_mpc import metropolis_hastings_best
@@ -74,6 +74,19 @@ def test_mpc_flies_the_four_aircraft_encounter_under_wind_safely(seed):
     speeds = result.records[..., R_AIRSPEED][flew]
     assert speeds.min() >= 366.0 and speeds.max() <= 540.0
     assert policy.episode_info()["fallbacks"] == 0
+
+
+def test_first_decision_holds_a_wider_margin_before_any_wind_is_seen():
+    # random-4 seed 610 (wind 28 kt): with the later decisions' 4-kt margin at the first
+    # decision too, one step of the first period flew 363.8 kt.
+    scenario = make_scenario("random-4", seed=610)
+    narrow = run_episode(MCMCMPC(first_decision_margin_kt=4.0), scenario, seed=610)
+    assert narrow.metrics.envelope_violation_fraction > 0.0
+    assert narrow.metrics.airspeed_min_kt < 366.0
+    default = MCMCMPC()
+    result = run_episode(default, scenario, seed=610)
+    assert default.first_decision_margin_kt == 10.0 and default.envelope_margin_kt == 4.0
+    assert result.metrics.envelope_violation_fraction == 0.0 and all(result.metrics.arrived)
 
 
 @pytest.mark.parametrize(
@@ -232,6 +245,7 @@ def test_homing_chain_starts_aimed_home_and_its_density_matches_its_draws():
         ({"recovery_fraction": 1.5}, "recovery_fraction"),
         ({"recovery_angle_rad": 2.0}, "recovery_angle_rad"),
         ({"search_rounds": -1}, "search_rounds"),
+        ({"first_decision_margin_kt": 60.0}, "first_decision_margin_kt"),
         ({"not_a_setting": 1}, "not_a_setting"),
     ],
 )

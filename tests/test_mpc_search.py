@@ -28,7 +28,7 @@ CASES = {
     "paper proposal": (lambda: converging(4), 0, dict(extractions=300, proposal="paper"), {}),
     # A narrow envelope: decisions rescued by a wider round, and fallbacks.
     "wider rounds": (
-        lambda: converging(4), 2, dict(extractions=100),
+        lambda: converging(4), 2, dict(extractions=100, first_decision_margin_kt=4.0),
         dict(config=SimConfig(airspeed_min_kt=400.0, airspeed_max_kt=470.0), max_time_s=1800.0),
     ),
     "fallbacks": (
