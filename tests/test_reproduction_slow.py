@@ -6,8 +6,7 @@ runs each of the 4- and 6-aircraft converging encounters and of the seeded rando
 
 Every aircraft home in every converging run, and in at least 999 of 1000 random runs (a
 random encounter may start two aircraft in a geometry that no waypoint resolves in time);
-in every run no loss of separation and no integration step outside the envelope, which
-the random encounters do not meet yet (a strict xfail that says why).
+in every run no loss of separation and no integration step outside the envelope.
 """
 
 from __future__ import annotations
@@ -52,12 +51,7 @@ def test_no_run_loses_separation(mpc_runs) -> None:
 
 
 @pytest.mark.slow
-def test_no_integration_step_leaves_the_envelope(mpc_runs, request) -> None:
-    if request.node.callspec.params["mpc_runs"].startswith("random"):
-        request.applymarker(pytest.mark.xfail(strict=True, reason=(
-            "known defect: at the first decision the MPC has no wind estimate yet, and under winds of "
-            "26-30 kt 1 of 1000 random-4 runs (seed 610) and 3 of 1000 random-6 runs (342, 679, 778) "
-            "dip 0.03-2.2 kt below 366 kt in the first period (REPRODUCTION.md)")))
+def test_no_integration_step_leaves_the_envelope(mpc_runs) -> None:
     config = SimConfig()
     assert _seeds(mpc_runs, lambda r: r["envelope_violation_fraction"] > 0) == []
     assert min(r["airspeed_min_kt"] for r in mpc_runs) >= config.airspeed_min_kt
