@@ -83,8 +83,7 @@ is met by one change:
   prediction flies without wind: ``first_decision_margin_kt`` (10 kt) holds there. With
   4 kt there too, ``atc-nf reproduce --runs 1000`` found 1 random-4 and 3 random-6 runs
   (winds of 26-30 kt) that dipped 0.03-2.2 kt below 366 kt in their first period; with
-  10 kt ``atc-nf reproduce --runs 1000`` flew all 4000 runs (converging-4/6,
-  random-4/6) without a step outside the envelope.
+  10 kt those four runs stay inside and the converging runs checked fly unchanged.
 
 Later horizon waypoints stay shifted copies, as in IV-C: with the decision re-planned
 every period, the recovery angles turned every missed aircraft home in the runs below
