@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import platform
 import shlex
 import subprocess
@@ -32,6 +31,8 @@ import zipfile
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Sequence
+
+from atc_nf_env.metrics import wilson_interval
 
 #: Libraries whose versions a card states.
 LIBRARIES = ("numpy", "numba", "torch", "stable-baselines3", "gymnasium", "pettingzoo")
@@ -115,17 +116,6 @@ def _system_info(path: Path) -> dict[str, str]:
         if value:
             info[key.strip()] = value.strip().split(" #")[0]
     return info
-
-
-def wilson(successes: int, runs: int) -> tuple[float, float]:
-    """Wilson 95 % interval of a proportion."""
-    if runs == 0:
-        return (0.0, 1.0)
-    z = 1.959963984540054
-    p = successes / runs
-    centre = (p + z * z / (2 * runs)) / (1 + z * z / runs)
-    half = z * math.sqrt(p * (1 - p) / runs + z * z / (4 * runs * runs)) / (1 + z * z / runs)
-    return (max(0.0, centre - half), min(1.0, centre + half))
 
 
 def _results_for(label: str, summaries: list[tuple[Path, dict[str, Any]]]) -> list[tuple[Path, str, dict, dict | None]]:
@@ -294,7 +284,7 @@ def card(path: Path, summaries: list[tuple[Path, dict[str, Any]]]) -> str:
                                              and rng["wind_sigma_mps"][0] - 1e-9 <= sigma <= rng["wind_sigma_mps"][1] + 1e-9
                                              else "**no**")
             successes = round(s["success_rate"] * s["runs"])
-            low, high = wilson(successes, s["runs"])
+            low, high = wilson_interval(successes, s["runs"])
             flight = s["flight_time_min"]["mean"]
             mpc_flight = mpc["flight_time_min"]["mean"] if mpc else None
             sep = s["min_separation_nm"]["min"]

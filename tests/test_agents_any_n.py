@@ -17,6 +17,7 @@ from agents.policy import OutsideOperatingRangeWarning, SB3AgentPolicy, env_meta
 from agents.train import CURVE_HEADER, save_model  # noqa: E402
 from atc_nf_env.envs import EnvConfig  # noqa: E402
 from atc_nf_env.episode import run_episode  # noqa: E402
+from atc_nf_env.metrics import wilson_interval  # noqa: E402
 from atc_nf_env.scenarios import make_scenario  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -167,10 +168,12 @@ def test_card_of_a_fresh_model_reports_its_provenance_and_results(ranged_model: 
     assert "1 run(s) with a loss of separation" in text and "2 run(s) outside the envelope" in text
 
 
-def test_wilson_interval() -> None:
-    low, high = cards.wilson(300, 300)
+def test_cards_use_the_evaluators_wilson_interval() -> None:
+    assert cards.wilson_interval is wilson_interval
+    low, high = wilson_interval(300, 300)
     assert abs(low - 300 / (300 + 1.959963984540054**2)) < 1e-12 and abs(high - 1.0) < 1e-12
-    assert cards.wilson(0, 0) == (0.0, 1.0)
+    with pytest.raises(ValueError):
+        wilson_interval(0, 0)
 
 
 # ------------------------------------------------------------------ learning curve
