@@ -595,6 +595,55 @@ def _advance_world(
     return math.sqrt(min_sep2), step, violated
 
 
+# Not inlined: an inlined body would take its caller's flags, and ``_advance_checked``
+# compiles without fast-math; a world must fly the same code alone and in a batch.
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def _advance_one(
+    b: int,
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind: np.ndarray,
+    n_steps: int,
+    params: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    min_separation: np.ndarray,
+    steps_done: np.ndarray,
+    violated: np.ndarray,
+    record: np.ndarray,
+    record_every: int,
+) -> None:
+    """World b of the batch: ``_advance_world`` on its slices, its outcome into the
+    per-world result arrays."""
+    sep, done, bad = _advance_world(
+        state[b],
+        waypoints[b],
+        wind[b, 0],
+        wind[b, 1],
+        n_steps,
+        params,
+        grad[b],
+        command[b],
+        min_airspeed[b],
+        max_airspeed[b],
+        violation_steps[b],
+        worst_excursion[b],
+        steps_flown[b],
+        los_pairs[b],
+        record[b],
+        record_every,
+    )
+    min_separation[b] = sep
+    steps_done[b] = done
+    violated[b] = bad
+
+
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", parallel=True)
 def _advance_batch(
     state: np.ndarray,
@@ -617,27 +666,11 @@ def _advance_batch(
     record_every: int,
 ) -> None:
     for b in prange(state.shape[0]):
-        sep, done, bad = _advance_world(
-            state[b],
-            waypoints[b],
-            wind[b, 0],
-            wind[b, 1],
-            n_steps,
-            params,
-            grad[b],
-            command[b],
-            min_airspeed[b],
-            max_airspeed[b],
-            violation_steps[b],
-            worst_excursion[b],
-            steps_flown[b],
-            los_pairs[b],
-            record[b],
-            record_every,
+        _advance_one(
+            b, state, waypoints, wind, n_steps, params, grad, command, min_airspeed, max_airspeed,
+            violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
+            violated, record, record_every,
         )
-        min_separation[b] = sep
-        steps_done[b] = done
-        violated[b] = bad
 
 
 # Outcomes of ``_advance_checked``.
@@ -687,27 +720,11 @@ def _advance_checked(
     if state.shape[0] == 1:
         # One world needs no thread pool: waking it costs more than the work itself, and
         # far more when other processes hold the cores.
-        sep, done, bad = _advance_world(
-            state[0],
-            waypoints[0],
-            wind[0, 0],
-            wind[0, 1],
-            n_steps,
-            params,
-            grad[0],
-            command[0],
-            min_airspeed[0],
-            max_airspeed[0],
-            violation_steps[0],
-            worst_excursion[0],
-            steps_flown[0],
-            los_pairs[0],
-            record[0],
-            record_every,
+        _advance_one(
+            0, state, waypoints, wind, n_steps, params, grad, command, min_airspeed, max_airspeed,
+            violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
+            violated, record, record_every,
         )
-        min_separation[0] = sep
-        steps_done[0] = done
-        violated[0] = bad
     else:
         _advance_batch(
             state,
