@@ -112,19 +112,26 @@ is bounded from below by what the rest of the horizon can still change: ground s
 at most the envelope's top airspeed plus the predicted wind, the time term known up to
 the arrival (``_LazyCandidates._bound``). While the chain sits on a feasible state, a
 candidate whose bound already gives ρ ≤ u (u its pre-drawn uniform) is rejected
-whatever its cost, as an infeasible one would be; the others are flown a period
-further, in one batch, and looked at again; a state the chain moves to is flown to the
-end. When Θ_0 itself is infeasible, the chain moves to every candidate until a feasible
-one and then wanders among the random draws, where the bound rejects few: every
-candidate is then flown to the end in one batch, as in the exhaustive search. Every verdict is the exhaustive chain's, taken with the same arithmetic, and
-a round without a feasible candidate has flown every candidate (the wider rounds and
-the fallback see exactly the exhaustive search's survivals), so the applied waypoints,
-the chain's moves, the rounds and the random stream are the same bit for bit
-(``tests/test_mpc_search.py``). When Θ_0 is feasible, its weight π/g makes the chain
-reject nearly every candidate on the bound alone, and Θ_0 is the only candidate flown.
-The price: the feasible fraction of the candidates is known only where every candidate
-was flown; ``search="exhaustive"`` flies all K over the whole horizon and reports it
-for every decision (``DecisionRecord.feasible_fraction`` is None otherwise).
+whatever its cost, as an infeasible one would be; the first candidate the bound does not
+decide is flown a period further and looked at again, and a state the chain moves to is
+flown to the end. With it, in the same batch of the kernel, fly the later candidates that
+the chain would also find undecided if it ran ahead on guessed costs (each aircraft flying
+straight home at the nominal airspeed): a guess only chooses what to fly, never a verdict.
+When Θ_0 is feasible, its weight π/g makes the chain reject nearly every candidate on
+the bound alone, and Θ_0 is the only candidate flown. When Θ_0 is infeasible, the chain
+moves to every candidate until a feasible one: the candidates are flown to the end in
+the chain's order, in batches of 8, 16, ..., until the first feasible one, and from there
+the chain wanders among the random draws as above, flying a fraction of the K · N
+candidate-periods the exhaustive search flies. Batches of fewer than
+``_PARALLEL_FROM_WORLDS`` candidates are flown on one thread. Every verdict is the
+exhaustive chain's, taken with the same arithmetic, and a round without a feasible
+candidate has flown every candidate (the wider rounds and the fallback see exactly the
+exhaustive search's survivals), so the applied waypoints, the chain's moves, the rounds
+and the random stream are the same bit for bit (``tests/test_mpc_search.py``). The
+price: the feasible fraction of the candidates is known only where every candidate was
+flown (in practice, a round without a feasible candidate); ``search="exhaustive"`` flies
+all K over the whole horizon and reports it for every decision
+(``DecisionRecord.feasible_fraction`` is None otherwise).
 
 Prediction wind and fallback
 ----------------------------
@@ -149,7 +156,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
+from numba import njit
 
 from atc_nf_env import kernel, nf
 from atc_nf_env.config import SimConfig
@@ -362,10 +371,16 @@ class MCMCMPC:
     def __init__(self, settings: MPCSettings | None = None, **overrides: Any) -> None:
         base = settings or MPCSettings()
         if overrides:
-            allowed = set(MPCSettings.__dataclass_fields__)
-            unknown = set(overrides) - allowed
+            allowed = list(MPCSettings.__dataclass_fields__)
+            unknown = sorted(set(overrides) - set(allowed))
             if unknown:
-                raise ValueError(f"unknown MPC settings {sorted(unknown)}; allowed: {sorted(allowed)}")
+                # Python's own wording for an unknown keyword argument (a TypeError; a bad
+                # value of a known setting is a ValueError).
+                more = f" (and {unknown[1:]})" if len(unknown) > 1 else ""
+                raise TypeError(
+                    f"{type(self).__name__}: got an unexpected keyword argument {unknown[0]!r}{more}; "
+                    f"allowed: {allowed}"
+                )
             base = MPCSettings(**{**base.__dict__, **overrides})
         self.settings = base
         self.decisions: list[DecisionRecord] = []
@@ -401,6 +416,8 @@ class MCMCMPC:
         if config.dt_s <= 0 or kernel.steps_for(self.settings.period_s, config.dt_s) < 1:
             raise ValueError(f"period_s = {self.settings.period_s}: must be >= one integration step")
         self._rng = np.random.default_rng([0 if seed is None else seed, 0x4D5043])
+        if self.settings.search == "lazy":
+            _load_compiled_chain()  # numba's compilation (or cache load) outside act's time
         stop = self.settings.constraint_check == "every-step"
         # The prediction's envelope: narrower by the margin; the real flight's is config's.
         # (config, params) at the first decision, then at every later one.
@@ -626,10 +643,7 @@ class MCMCMPC:
         """Costs (K,), survival (K,) and positions after the first period (K, N, 2)."""
         s = self.settings
         assert self._params is not None
-        states = np.repeat(base_state[None], s.extractions, axis=0)
-        waypoints = proposals.copy()
-        flying0 = base_state[:, S_STATUS] == FLYING
-        waypoints[:, ~flying0] = base_state[None, ~flying0, kernel.S_WP_X : kernel.S_WP_Y + 1]
+        states, waypoints = _candidate_starts(base_state, proposals)
         wind = self._prediction_wind()
         feasible = np.ones(s.extractions, dtype=bool)
         survived = np.zeros(s.extractions, dtype=np.int64)
@@ -714,6 +728,17 @@ class MCMCMPC:
         )
 
 
+def _candidate_starts(base_state: np.ndarray, proposals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The K candidates' states (K, N, N_STATE), each a copy of ``base_state``, and their
+    first waypoints (K, N, 2), nm: the proposals for the aircraft flying, the stored
+    waypoint for the others (no switch for an aircraft that no longer flies)."""
+    states = np.repeat(base_state[None], proposals.shape[0], axis=0)
+    waypoints = proposals.copy()
+    flying0 = base_state[:, S_STATUS] == FLYING
+    waypoints[:, ~flying0] = base_state[None, ~flying0, kernel.S_WP_X : kernel.S_WP_Y + 1]
+    return states, waypoints
+
+
 class _LazyCandidates:
     """The K candidates of one round, each simulated only as far as it is asked to be.
 
@@ -730,11 +755,7 @@ class _LazyCandidates:
         k, n = proposals.shape[0], base_state.shape[0]
         self.mpc = mpc
         self.base_state = base_state
-        self.states = np.repeat(base_state[None], k, axis=0)
-        waypoints = proposals.copy()
-        flying0 = base_state[:, S_STATUS] == FLYING
-        waypoints[:, ~flying0] = base_state[None, ~flying0, kernel.S_WP_X : kernel.S_WP_Y + 1]
-        self.waypoints = waypoints
+        self.states, self.waypoints = _candidate_starts(base_state, proposals)
         self.wind_kt = wind_kt
         self.depth = np.zeros(k, dtype=np.int64)  # periods flown
         self.feasible = np.ones(k, dtype=bool)
@@ -743,6 +764,7 @@ class _LazyCandidates:
         self.costs = np.full(k, np.nan)  # known once done
         self.done = np.zeros(k, dtype=bool)  # flown to the horizon's end, or infeasible
         self.lower = np.zeros(k)  # lower bound of the cost of a candidate not done, nm
+        self.estimate = np.zeros(k)  # a guess of that cost (to choose what to fly), nm
         self.world_periods = 0  # candidate-periods flown (diagnostics of the search)
         config = mpc._config
         params = mpc._params
@@ -756,45 +778,77 @@ class _LazyCandidates:
         self._time_cost_kt = AIRSPEED_NOMINAL_KT if s.proposal == "homing" else 0.0
         self._arrival_nm = float(params[nf.P_DELTA])
         self._dt_h = float(params[nf.P_DT]) / SECONDS_PER_HOUR
-        # Before anything flies every candidate's state is the base state.
-        self._bound(np.arange(k), base_state[None])
+        # Before anything flies every candidate's state is the base state; under one
+        # wind for all (every wind model but "sampled") so is every candidate's bound.
+        if (wind_kt == wind_kt[:1]).all():
+            self._bound(np.array([0]), base_state[None])
+            self.lower[1:] = self.lower[0]
+            self.estimate[1:] = self.estimate[0]
+        else:
+            self._bound(np.arange(k), base_state[None])
 
-    def advance(self, rows: np.ndarray) -> None:
-        """Fly the candidates ``rows`` (none of them done) one more period."""
+    def advance(self, rows: np.ndarray, bound: bool = True) -> None:
+        """Fly the candidates ``rows`` (ascending, none of them done) one more period;
+        ``bound``: bound the cost of those not done after it (skipped where they will be
+        flown on at once)."""
         mpc, s = self.mpc, self.mpc.settings
         assert mpc._params is not None and mpc._config is not None
-        states = self.states[rows]
-        waypoints = self.waypoints[rows]
-        feasible = self.feasible[rows]
+        if rows.size == 0:
+            return
+        # A run of consecutive candidates is flown in place (views), any other set as copies.
+        consecutive = int(rows[-1]) - int(rows[0]) + 1 == rows.size
+        index = slice(int(rows[0]), int(rows[-1]) + 1) if consecutive else rows
+        states = self.states[index]
+        waypoints = self.waypoints[index]
+        feasible = self.feasible[index]
+        depth = self.depth[index]
         before = states[:, :, S_X : S_Y + 1].copy()
-        trace = kernel.advance(states, waypoints, self.wind_kt[rows], s.period_s, mpc._params, scratch=mpc._scratch)
+        threads = numba.get_num_threads()
+        if rows.size < _PARALLEL_FROM_WORLDS and threads > 1:
+            # A small batch on one thread: waking the thread pool costs more than its
+            # work, and far more while other processes hold the cores.
+            numba.set_num_threads(1)
+            try:
+                trace = kernel.advance(
+                    states, waypoints, self.wind_kt[index], s.period_s, mpc._params, scratch=mpc._scratch
+                )
+            finally:
+                numba.set_num_threads(threads)
+        else:
+            trace = kernel.advance(
+                states, waypoints, self.wind_kt[index], s.period_s, mpc._params, scratch=mpc._scratch
+            )
         newly_bad, flown = mpc._period_verdict(states, trace, feasible)
-        self.survived[rows] += flown
+        self.survived[index] += flown
         feasible &= ~newly_bad
         states[newly_bad, :, S_STATUS] = np.where(
             states[newly_bad, :, S_STATUS] == FLYING, ABSENT, states[newly_bad, :, S_STATUS]
         )
-        first = self.depth[rows] == 0
+        first = depth == 0
         self.after_first[rows[first]] = states[first, :, S_X : S_Y + 1]
-        self.states[rows] = states
-        self.waypoints[rows] = waypoints + (states[:, :, S_X : S_Y + 1] - before)
-        self.feasible[rows] = feasible
-        self.depth[rows] += 1
+        waypoints += states[:, :, S_X : S_Y + 1] - before
+        depth += 1
+        if not consecutive:
+            self.states[rows] = states
+            self.waypoints[rows] = waypoints
+            self.feasible[rows] = feasible
+            self.depth[rows] = depth
         self.world_periods += rows.size
-        finished = ~feasible | (self.depth[rows] == s.horizon)
+        finished = ~feasible | (depth == s.horizon)
         if finished.any():
             ended = rows[finished]
-            cost = mpc._cost(self.base_state, self.states[ended])
-            self.costs[ended] = np.where(self.feasible[ended], cost, np.inf)
+            cost = mpc._cost(self.base_state, states[finished])
+            self.costs[ended] = np.where(feasible[finished], cost, np.inf)
             self.done[ended] = True
-        if (~finished).any():
+        if bound and not finished.all():
             self._bound(rows[~finished])
 
     def complete(self, rows: np.ndarray) -> None:
-        """Fly the candidates ``rows`` to the horizon's end (or their first violation)."""
+        """Fly the candidates ``rows`` (ascending) to the horizon's end (or their first
+        violation)."""
         rows = rows[~self.done[rows]]
         while rows.size:
-            self.advance(rows)
+            self.advance(rows, bound=False)
             rows = rows[~self.done[rows]]
 
     def _bound(self, rows: np.ndarray, states: np.ndarray | None = None) -> None:
@@ -835,62 +889,49 @@ class _LazyCandidates:
         lower = frozen + np.where(flying, share, 0.0).sum(axis=1) + c * elapsed_h.sum(axis=1)
         # Rounding: the bound is compared with a cost summed in another order.
         self.lower[rows] = np.maximum(lower * (1.0 - 1e-9) - 1e-9, 0.0)  # broadcast over rows
+        # The guess: the same with every aircraft flying straight home at the nominal
+        # airspeed from where it is now.
+        nominal = AIRSPEED_NOMINAL_KT
+        reach_h = np.minimum(distance / nominal, left_h)
+        guess = np.maximum(distance - nominal * left_h, 0.0) + c * reach_h
+        self.estimate[rows] = frozen + np.where(flying, guess, 0.0).sum(axis=1) + c * elapsed_h.sum(axis=1)
 
 
-def _lazy_chain(
-    candidates: _LazyCandidates,
-    log_proposal: np.ndarray,
-    uniforms: np.ndarray,
+#: Candidates flown in the first batch of the search for the first feasible one, when
+#: the chain's initial state is infeasible (each later batch twice the last): a small
+#: batch, as the first feasible candidate is usually among the first few dozen.
+_FIRST_FEASIBLE_BATCH = 8
+
+#: Batches of fewer candidates are flown on one thread.
+_PARALLEL_FROM_WORLDS = 64
+
+
+@njit(cache=True)
+def _chain_until_undecided(
+    k: int,
+    current: int,
+    best: int,
+    accepted: int,
+    done: np.ndarray,
+    costs: np.ndarray,
+    log_cost: np.ndarray,
+    log_lower: np.ndarray,
+    log_g: np.ndarray,
+    log_u: np.ndarray,
     cost_exponent: float,
-    acceptance: str,
-) -> tuple[int, int, bool]:
-    """``metropolis_hastings_best`` over candidates simulated on demand.
+    sign: float,
+) -> tuple[int, int, int, int]:
+    """Run the chain from candidate ``k`` while the state ``current`` is feasible, until
+    a candidate that is neither done nor rejected by its cost's lower bound.
 
-    The chain needs a candidate's cost only to decide whether to move to it. While the
-    chain sits on a feasible state, a candidate whose cost's lower bound already gives
-    ρ ≤ u is rejected whatever its cost (an infeasible one is rejected too), so it is
-    not flown further; every other one is flown a period further and looked at again,
-    and a candidate the chain moves to is always flown to the end. When the chain's
-    initial state is infeasible, every candidate is flown to the end.
-    Every verdict is the one ``metropolis_hastings_best`` takes on the full costs, with
-    the same arithmetic, so the best state and the number of moves are the same.
-
-    Returns:
-        (index of the lowest-cost state the chain visited, number of accepted moves,
-        whether any candidate was feasible). When none was, every candidate was flown
-        to its end.
+    The verdicts of ``metropolis_hastings_best`` with the same operations in the same
+    order (IEEE arithmetic, no fast-math), on logarithms taken by its callers as it
+    takes them. Returns (that candidate, or K; the state; the best state; moves).
     """
-    k_total = log_proposal.shape[0]
-    sign = 1.0 if acceptance == "standard" else -1.0
-    log_u = [math.log(max(float(u), 1e-300)) for u in uniforms]
-    log_u_array = np.array(log_u)
-    log_g = log_proposal.tolist()
-    c = candidates
-
-    def refresh() -> tuple[list[float], list[float], list[bool]]:
-        # Logarithms over the whole array, as metropolis_hastings_best takes them.
-        known = np.where(c.done, c.costs, 1.0)
-        log_cost = np.log(np.maximum(known, _COST_FLOOR_NM)).tolist()
-        log_lower = np.log(np.maximum(c.lower, _COST_FLOOR_NM)).tolist()
-        return log_cost, log_lower, c.done.tolist()
-
-    c.complete(np.array([0]))
-    if math.isinf(c.costs[0]):
-        # The chain starts infeasible: it moves to every candidate until a feasible one,
-        # and then wanders among the random draws (Table I's regime), where the bound
-        # rejects few. Every candidate is flown to the end, in one batch: as much flying
-        # as the exhaustive search, without the overhead of many small batches.
-        c.complete(np.arange(1, k_total))
-        best, accepted, _ = metropolis_hastings_best(c.costs, log_proposal, uniforms, cost_exponent, acceptance)
-        return best, accepted, bool(np.isfinite(c.costs).any())
-    costs = c.costs
-    log_cost, log_lower, done = refresh()
-    current = best = 0
-    accepted = 0
-    k = 1
-    while k < k_total:  # the current state is feasible from here on
+    k_total = done.shape[0]
+    while k < k_total:
         if done[k]:
-            if not math.isinf(costs[k]):
+            if not math.isinf(costs[k]):  # an infeasible candidate is rejected
                 log_rho = cost_exponent * (log_cost[current] - log_cost[k]) + sign * (log_g[current] - log_g[k])
                 if log_rho >= 0.0 or log_u[k] < log_rho:
                     current = k
@@ -903,15 +944,130 @@ def _lazy_chain(
         if upper < 0.0 and log_u[k] >= upper:
             k += 1  # rejected whatever its cost
             continue
-        # Undecided: fly it, and every later candidate undecided against this state, one
-        # period further (they are flown in one batch).
-        rest = np.arange(k, k_total)
-        rest = rest[~c.done[rest]]
-        upper_rest = cost_exponent * (log_cost[current] - np.asarray(log_lower)[rest]) + sign * (
-            log_proposal[current] - log_proposal[rest]
+        return k, current, best, accepted
+    return k, current, best, accepted
+
+
+@njit(cache=True)
+def _undecided_ahead(
+    k: int,
+    current: int,
+    done: np.ndarray,
+    costs: np.ndarray,
+    log_cost: np.ndarray,
+    log_lower: np.ndarray,
+    log_guess: np.ndarray,
+    log_g: np.ndarray,
+    log_u: np.ndarray,
+    cost_exponent: float,
+    sign: float,
+) -> np.ndarray:
+    """The candidates from ``k`` on (k itself first) that the chain will probably find
+    undecided: it is run ahead as if every candidate not done were feasible and cost
+    its guess. Only a choice of what to fly next; every verdict is taken on true costs.
+    """
+    k_total = done.shape[0]
+    rows = np.empty(k_total - k, dtype=np.int64)
+    rows[0] = k
+    count = 1
+    score = cost_exponent * log_cost[current] + sign * log_g[current]  # the state's
+    rise = score - (cost_exponent * log_guess[k] + sign * log_g[k])
+    if rise >= 0.0 or log_u[k] < rise:
+        score -= rise
+    for j in range(k + 1, k_total):
+        if done[j]:
+            if not math.isinf(costs[j]):
+                rise = score - (cost_exponent * log_cost[j] + sign * log_g[j])
+                if rise >= 0.0 or log_u[j] < rise:
+                    score -= rise
+            continue
+        upper = score - (cost_exponent * log_lower[j] + sign * log_g[j])
+        if upper < 0.0 and log_u[j] >= upper:
+            continue
+        rows[count] = j
+        count += 1
+        rise = score - (cost_exponent * log_guess[j] + sign * log_g[j])
+        if rise >= 0.0 or log_u[j] < rise:
+            score -= rise
+    return rows[:count]
+
+
+def _load_compiled_chain() -> None:
+    """Compile (or load from numba's cache) the lazy chain's helpers, on two candidates."""
+    done = np.ones(2, dtype=np.bool_)
+    values = np.zeros(2)
+    _chain_until_undecided(1, 0, 0, 0, done, values, values, values, values, values, 1.0, 1.0)
+    _undecided_ahead(1, 0, ~done, values, values, values, values, values, values, 1.0, 1.0)
+
+
+def _lazy_chain(
+    candidates: _LazyCandidates,
+    log_proposal: np.ndarray,
+    uniforms: np.ndarray,
+    cost_exponent: float,
+    acceptance: str,
+) -> tuple[int, int, bool]:
+    """``metropolis_hastings_best`` over candidates simulated on demand.
+
+    The chain needs a candidate's cost only to decide whether to move to it. While the
+    chain sits on an infeasible state it moves to every candidate, whatever its cost:
+    the candidates are flown to the end in the chain's order, in batches, until the
+    first feasible one. From there on the chain sits on a feasible state, and a
+    candidate whose cost's lower bound already gives ρ ≤ u is rejected whatever its
+    cost (an infeasible one is rejected too), so it is not flown further. The first
+    candidate that is neither is flown a period further and looked at again, and with
+    it, in one batch, every later one that the chain, run ahead on guessed costs
+    (``_undecided_ahead``), would find undecided too. A candidate the chain moves to has
+    always been flown to the end.
+    Every verdict is the one ``metropolis_hastings_best`` takes on the full costs, with
+    the same arithmetic, so the best state and the number of moves are the same.
+
+    Returns:
+        (index of the lowest-cost state the chain visited, number of accepted moves,
+        whether any candidate was feasible). When none was, every candidate was flown
+        to its end.
+    """
+    c = candidates
+    k_total = log_proposal.shape[0]
+    sign = 1.0 if acceptance == "standard" else -1.0
+    # math.log of each uniform, as metropolis_hastings_best takes it (np.log may round
+    # differently); max(u, 1e-300) is the same double as np.maximum's.
+    log_u = np.array(list(map(math.log, np.maximum(uniforms, 1e-300).tolist())))
+    c.complete(np.array([0]))
+    current = best = 0
+    accepted = 0
+    k = 1
+    costs = c.costs
+    if math.isinf(costs[0]):
+        # From an infeasible state the chain moves to every candidate (to an infeasible
+        # one: no preference; to a feasible one: always), and the last state visited is
+        # the best so far, until the first feasible candidate.
+        batch = _FIRST_FEASIBLE_BATCH
+        while k < k_total:
+            rows = np.arange(k, min(k + batch, k_total))
+            c.complete(rows)
+            feasible = np.flatnonzero(np.isfinite(costs[rows]))
+            if feasible.size:
+                current = best = int(rows[feasible[0]])
+                accepted = current
+                k = current + 1
+                break
+            k = int(rows[-1]) + 1
+            batch *= 2
+        else:
+            return k_total - 1, k_total - 1, False
+    while True:  # the current state is feasible from here on
+        # Logarithms over the whole array, as metropolis_hastings_best takes them.
+        log_cost = np.log(np.maximum(np.where(c.done, costs, 1.0), _COST_FLOOR_NM))
+        log_lower = np.log(np.maximum(c.lower, _COST_FLOOR_NM))
+        k, current, best, accepted = _chain_until_undecided(
+            k, current, best, accepted, c.done, costs, log_cost, log_lower, log_proposal, log_u, cost_exponent, sign
         )
-        undecided = ~((upper_rest < 0.0) & (log_u_array[rest] >= upper_rest))
-        undecided[0] = True  # candidate k itself
-        c.advance(rest[undecided])
-        log_cost, log_lower, done = refresh()
-    return best, accepted, bool(np.isfinite(costs).any())
+        if k == k_total:
+            return best, accepted, True
+        log_guess = np.log(np.maximum(c.estimate, _COST_FLOOR_NM))
+        c.advance(
+            _undecided_ahead(
+                k, current, c.done, costs, log_cost, log_lower, log_guess, log_proposal, log_u, cost_exponent, sign
+            )
+        )

@@ -246,12 +246,21 @@ def test_homing_chain_starts_aimed_home_and_its_density_matches_its_draws():
         ({"recovery_angle_rad": 2.0}, "recovery_angle_rad"),
         ({"search_rounds": -1}, "search_rounds"),
         ({"first_decision_margin_kt": 60.0}, "first_decision_margin_kt"),
-        ({"not_a_setting": 1}, "not_a_setting"),
     ],
 )
 def test_bad_mpc_settings_are_clear_errors(kwargs, field):
     with pytest.raises(ValueError, match=field):
         MCMCMPC(**kwargs)
+
+
+def test_an_unknown_mpc_setting_is_a_type_error_naming_it_and_the_allowed_ones():
+    # The project's convention: TypeError for an unknown keyword argument, as Python's own.
+    with pytest.raises(TypeError, match=r"MCMCMPC: got an unexpected keyword argument 'not_a_setting'; allowed: .*'extractions'"):
+        MCMCMPC(not_a_setting=1)
+    with pytest.raises(TypeError, match=r"'extractons' \(and \['horizn'\]\); allowed"):
+        MCMCMPC(extractons=10, horizn=2, horizon=2)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'not_a_setting'"):
+        MPCSettings(not_a_setting=1)
 
 
 def test_settings_default_to_the_paper():

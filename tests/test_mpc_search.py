@@ -17,7 +17,7 @@ from atc_nf_env.episode import run_episode
 from atc_nf_env.kernel import FLYING, S_STATUS
 from atc_nf_env.scenarios import converging, random_encounter
 from atc_nf_env.simulation import Simulation
-from baselines import MCMCMPC
+from baselines import MCMCMPC, mcmc_mpc
 from baselines.mcmc_mpc import _LazyCandidates
 
 CASES = {
@@ -53,8 +53,33 @@ def _fly(case: str, search: str):
     return policy, result
 
 
+@pytest.fixture
+def chains(monkeypatch):
+    """What every lazy chain of the test saw: (initial state infeasible, index of the
+    first feasible candidate or None, candidate-periods flown, moves of the chain, K)."""
+    seen = []
+    original = mcmc_mpc._lazy_chain
+
+    def spy(candidates, log_proposal, *args):
+        best, accepted, any_feasible = original(candidates, log_proposal, *args)
+        known = np.flatnonzero(candidates.done & np.isfinite(candidates.costs))
+        seen.append(
+            (
+                bool(np.isinf(candidates.costs[0])),
+                int(known[0]) if known.size else None,
+                candidates.world_periods,
+                accepted,
+                log_proposal.shape[0],
+            )
+        )
+        return best, accepted, any_feasible
+
+    monkeypatch.setattr(mcmc_mpc, "_lazy_chain", spy)
+    return seen
+
+
 @pytest.mark.parametrize("case", list(CASES))
-def test_lazy_search_flies_the_exhaustive_episode_bit_for_bit(case):
+def test_lazy_search_flies_the_exhaustive_episode_bit_for_bit(case, chains):
     exhaustive, a = _fly(case, "exhaustive")
     lazy, b = _fly(case, "lazy")
     assert np.array_equal(a.records, b.records)
@@ -70,11 +95,19 @@ def test_lazy_search_flies_the_exhaustive_episode_bit_for_bit(case):
     info_a.pop("feasible_fraction"), info_b.pop("feasible_fraction")
     assert info_a == info_b
     assert lazy.search_world_periods <= exhaustive.search_world_periods
-    if case == "converging-4":
-        # Some decision's chain started infeasible and moved many times (every candidate
-        # flown: the feasible fraction is known); most decisions flew only the chain's
-        # initial state.
-        assert max(d.chain_acceptance for d in lazy.decisions if d.feasible_fraction is not None) > 0.05
+    horizon = lazy.settings.horizon
+    if case in ("converging-4", "converging-6"):
+        # Most decisions flew only the chain's initial state. Some chains started
+        # infeasible, searched for the first feasible candidate in batches (beyond the
+        # first batch on converging-6), and then moved many times among candidates flown
+        # only as far as the bound needed: far fewer than K · N candidate-periods.
+        assert sum(periods == horizon for _, _, periods, _, _ in chains) > len(chains) / 2
+        started_infeasible = [c for c in chains if c[0]]
+        assert started_infeasible and all(first is not None for _, first, _, _, _ in started_infeasible)
+        assert max(moves / k for _, _, _, moves, k in started_infeasible) > 0.05
+        assert all(periods < 0.5 * k * horizon for _, _, periods, _, k in started_infeasible)
+        if case == "converging-6":
+            assert max(first for _, first, _, _, _ in started_infeasible) > mcmc_mpc._FIRST_FEASIBLE_BATCH
         assert lazy.search_world_periods < 0.5 * exhaustive.search_world_periods
     if case == "paper proposal":
         # A chain that moved among candidates flown only in part: the bound-and-refine path.

@@ -156,7 +156,7 @@ def test_bad_arguments_are_refused():
         SafetyFilter(AimThrough(), home_distance_nm="far")
     with pytest.raises(TypeError):
         SafetyFilter(AimThrough(), margin=3.0)  # unknown keyword
-    with pytest.raises(ValueError, match="unknown MPC settings"):
+    with pytest.raises(ValueError, match="unexpected keyword argument 'extractons'"):
         SafetyFilter(AimThrough(), mpc_settings={"extractons": 10})
     with pytest.raises(RuntimeError, match="reset"):
         SafetyFilter(AimThrough(), fallback="least-bad").act(None)
