@@ -13,9 +13,14 @@ actions in [-1, 1]² for every live agent, reset when the episode ends (resets i
   period per call, with random actions mapped to waypoints as the envs map them and the
   envs' 36-period limit (so it flies what the envs fly): periods per second.
 
-Rounds alternate kernel, parallel, AEC, centralized, so that every ratio compares
-figures taken under the same load; reported: medians over rounds, and the ratio env /
-kernel (1 would mean the env costs nothing beyond the physics).
+Every loop is warmed up first (numba compilation and caches, not timed), so all of
+them fly the same compiled kernel. Then rounds of short chunks, one chunk of each loop
+per round, the order rotated from round to round (no loop always runs right after the
+same one): each round's ratio env / kernel compares figures taken within a second or two
+of each other, under the same load. Reported: the median rates over rounds and the
+median of the per-round ratios, with their quartiles (1 would mean the env costs nothing
+beyond the physics). On a shared machine the load moves within seconds; ratios within a
+round are what to compare, rates between runs are not.
 
 Vector env: ``EncounterVectorEnv`` with B worlds (next-step autoreset), random actions;
 an aircraft-decision is one aircraft flying one decision period (aircraft that have
@@ -23,12 +28,13 @@ arrived, padding and worlds being reset are not counted). For comparison the sam
 worlds through Gymnasium's ``SyncVectorEnv`` over ``EncounterEnv``, and the SB3 adapter
 in parameter-shared mode.
 
-Run: python bench/bench_envs.py [--write] [--rounds R] [--seconds S]
+Run: python bench/bench_envs.py [--write] [--rounds R] [--seconds S] [--skip-vector]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
@@ -101,17 +107,20 @@ class ParallelLoop:
 
 class AECLoop:
     """Counts cycles: one cycle = one decision period (every live agent acted once). The
-    cycle's random actions are drawn at once, as the other loops draw theirs."""
+    cycle's random actions are drawn at once, as the other loops draw theirs; each agent
+    takes its own aircraft's row. The loop is the usual one (selection, ``last()``,
+    ``step()``), with bookkeeping of its own kept to a dict look-up."""
 
     def __init__(self, n_aircraft: int) -> None:
         self.env = atc_nf_env.env(scenario=f"converging-{n_aircraft}")
         self.rng = np.random.default_rng(0)
         self.env.reset(seed=0)
         self.n = n_aircraft
+        self.row = {agent: i for i, agent in enumerate(self.env.possible_agents)}
         self.actions = self.rng.uniform(-1.0, 1.0, (n_aircraft, 2)).astype(np.float32)
 
     def run(self, cycles: int) -> None:
-        env, rng = self.env, self.rng
+        env, rng, row = self.env, self.rng, self.row
         done_cycles = 0
         actions = self.actions
         while done_cycles < cycles:
@@ -122,11 +131,10 @@ class AECLoop:
             if terminated or truncated:
                 env.step(None)
                 continue
-            index = env.agents.index(agent)
-            if index == 0:
+            if agent == env.agents[0]:  # the first live agent: a new cycle
                 done_cycles += 1
                 actions = rng.uniform(-1.0, 1.0, (self.n, 2)).astype(np.float32)
-            env.step(actions[index])
+            env.step(actions[row[agent]])
         self.actions = actions
 
 
@@ -153,7 +161,9 @@ def rate(loop, count: int) -> float:
     return count / (time.perf_counter() - t0)
 
 
-def single_world_rates(n_aircraft: int, rounds: int, seconds: float) -> dict[str, float]:
+def single_world_rates(n_aircraft: int, rounds: int, seconds: float) -> dict[str, dict[str, float]]:
+    """Per loop: the median rate over rounds ("rate") and, for the envs, the median and
+    quartiles of the per-round ratio env rate / kernel rate ("ratio", "q1", "q3")."""
     loops = {
         "kernel": KernelLoop(n_aircraft),
         "parallel": ParallelLoop(n_aircraft),
@@ -163,12 +173,20 @@ def single_world_rates(n_aircraft: int, rounds: int, seconds: float) -> dict[str
     counts = {}
     for name, loop in loops.items():  # warm up (compilation, caches), then size each chunk
         loop.run(20)
-        counts[name] = max(20, int(rate(loop, 100) * seconds))
+        loop.run(200)
+        counts[name] = max(20, int(rate(loop, 200) * seconds))
+    names = list(loops)
     rates: dict[str, list[float]] = {name: [] for name in loops}
-    for _ in range(rounds):
-        for name, loop in loops.items():
-            rates[name].append(rate(loop, counts[name]))
-    return {name: statistics.median(values) for name, values in rates.items()}
+    for round_index in range(rounds):
+        shift = round_index % len(names)
+        for name in names[shift:] + names[:shift]:
+            rates[name].append(rate(loops[name], counts[name]))
+    result = {"kernel": {"rate": statistics.median(rates["kernel"])}}
+    for name in names[1:]:
+        ratios = [env_rate / kernel_rate for env_rate, kernel_rate in zip(rates[name], rates["kernel"])]
+        q1, _, q3 = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else (ratios[0],) * 3
+        result[name] = {"rate": statistics.median(rates[name]), "ratio": statistics.median(ratios), "q1": q1, "q3": q3}
+    return result
 
 
 def _vector_decisions_per_s(vec, n_worlds: int, n_aircraft: int, steps: int, repeats: int) -> float:
@@ -222,26 +240,30 @@ def sb3_shared_steps_per_s(n_worlds: int, n_aircraft: int, steps: int, repeats: 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--write", action="store_true", help="write the tables into BENCHMARKS.md")
-    parser.add_argument("--rounds", type=int, default=7, help="interleaved rounds of the single-world envs")
-    parser.add_argument("--seconds", type=float, default=1.0, help="length of one env's chunk in a round, s")
+    parser.add_argument("--rounds", type=int, default=25, help="interleaved rounds of the single-world envs")
+    parser.add_argument("--seconds", type=float, default=0.3, help="length of one loop's chunk in a round, s")
     parser.add_argument("--repeats", type=int, default=7, help="repeats of the vector env measurements")
     parser.add_argument("--worlds", type=int, default=256, help="B of the vector env")
     parser.add_argument("--skip-vector", action="store_true", help="only the single-world envs")
     args = parser.parse_args(argv)
+    if args.write and args.skip_vector:
+        parser.error("--write needs the whole section: leave out --skip-vector")
     b = args.worlds
+    loads = [os.getloadavg()[0]]
 
     single_rows = [
-        "| scenario | bare kernel (periods/s) | parallel_env (steps/s) | ratio | AEC env (cycles/s) | ratio "
-        "| gym.make (steps/s) | ratio |",
+        "| scenario | bare kernel (periods/s) | parallel_env (steps/s) | ratio [quartiles] | AEC env (cycles/s) "
+        "| ratio [quartiles] | gym.make (steps/s) | ratio [quartiles] |",
         "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for n in (4, 6):
         r = single_world_rates(n, args.rounds, args.seconds)
-        k = r["kernel"]
-        single_rows.append(
-            f"| converging-{n} | {k:,.0f} | {r['parallel']:,.0f} | {r['parallel'] / k:.2f} | {r['aec']:,.0f} "
-            f"| {r['aec'] / k:.2f} | {r['centralized']:,.0f} | {r['centralized'] / k:.2f} |"
-        )
+        cells = [f"converging-{n}", f"{r['kernel']['rate']:,.0f}"]
+        for name in ("parallel", "aec", "centralized"):
+            e = r[name]
+            cells += [f"{e['rate']:,.0f}", f"**{e['ratio']:.2f}** [{e['q1']:.2f}–{e['q3']:.2f}]"]
+        single_rows.append("| " + " | ".join(cells) + " |")
+        loads.append(os.getloadavg()[0])
         print(single_rows[-1], flush=True)
 
     vec_rows = [
@@ -256,6 +278,7 @@ def main(argv: list[str] | None = None) -> int:
             sync = sync_decisions_per_s(b, n, vec_steps // 4, max(1, args.repeats // 2))
             shared = sb3_shared_steps_per_s(b, n, vec_steps, args.repeats)
             vec_rows.append(f"| converging-{n} | {native:,.0f} | {sync:,.0f} | {native / sync:.1f}× | {shared:,.0f} |")
+            loads.append(os.getloadavg()[0])
             print(vec_rows[-1], flush=True)
 
     text = "\n".join(
@@ -263,12 +286,15 @@ def main(argv: list[str] | None = None) -> int:
             "## Environment throughput",
             "",
             f"`python bench/bench_envs.py` — {machine()}, numba {numba.__version__} with "
-            f"{numba.get_num_threads()} threads. One env step = one 5-min decision period "
+            f"{numba.get_num_threads()} threads; 1-min load average {min(loads):.1f}–{max(loads):.1f} during "
+            "the run (2 cores: above about 1, other jobs share the machine). One env step = one 5-min decision period "
             "(60 kernel steps of 5 s); wind σ = 5.17 m/s; uniform random actions; resets included.",
             "",
-            f"Single-world envs against the bare kernel (`kernel.advance`, one world, one period per call), "
-            f"one process, measured interleaved in {args.rounds} rounds (medians); ratio = env rate / "
-            "kernel rate (target >= 0.5):",
+            "Single-world envs against the bare kernel (`kernel.advance`, one world, one period per call, "
+            "random actions mapped to waypoints as the envs map them), one process, every loop warmed up "
+            f"first (compilation not timed), then {args.rounds} rounds of {args.seconds:g}-s chunks, one of "
+            "each loop per round in rotating order. Rates: medians over rounds. Ratio: median over rounds "
+            "of env rate / kernel rate in the same round, with its quartiles (target >= 0.5):",
             "",
             *single_rows,
             "",

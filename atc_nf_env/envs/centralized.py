@@ -3,6 +3,7 @@ episode logic (``EncounterWorld``) that it shares with the PettingZoo env."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -105,7 +106,9 @@ def _world_after_period(
     """Everything a single-world env reports after ``kernel.advance`` flew one period, in
     one call: the rewards and per-aircraft infos (the same arithmetic as
     ``rewards.step_outcome``, bit for bit), the observations and nearest distances.
-    state (1, n, N_STATE); per-aircraft arrays (n,); obs (1, n_slots, D); nearest (1, n_slots)."""
+    state (1, n, N_STATE); the trace's arrays as ``advance`` returned them (1, n) and
+    (1, n, n); actions and per-aircraft arrays (n,); obs (1, n_slots, D); nearest
+    (1, n_slots)."""
     _observe(state, obs_args, wind, n_neighbours, expose_wind, scales, obs, nearest)
     n = flying_before.shape[0]
     for i in range(n):
@@ -118,19 +121,19 @@ def _world_after_period(
         flying_after[i] = status == FLYING
         arrived = status == ARRIVED
         left = status == LEFT
-        share = violation_steps[i] / max(steps_flown[i], 1)
+        share = violation_steps[0, i] / max(steps_flown[0, i], 1)
         count = 0
         for j in range(n):
-            count += los_pairs[i, j]
+            count += los_pairs[0, i, j]
         gain = (distance_before[i] - after) * (1.0 if flew else 0.0)
         record = info[i]
         record["airspeed_kt"] = state[0, i, S_AIRSPEED]
-        record["airspeed_min_kt"] = min_airspeed[i]
-        record["airspeed_max_kt"] = max_airspeed[i]
+        record["airspeed_min_kt"] = min_airspeed[0, i]
+        record["airspeed_max_kt"] = max_airspeed[0, i]
         record["distance_to_go_nm"] = after
         record["nearest_nm"] = nearest[0, i]
         record["los_count"] = count
-        record["envelope_violation"] = violation_steps[i] > 0
+        record["envelope_violation"] = violation_steps[0, i] > 0
         record["envelope_violation_fraction"] = share
         record["action_clipped"] = flew and (
             actions[i, 0] < -1.0 or actions[i, 0] > 1.0 or actions[i, 1] < -1.0 or actions[i, 1] > 1.0
@@ -144,6 +147,16 @@ def _world_after_period(
             + weights[3] * (1.0 if flew and arrived else 0.0)
             - weights[4] * (1.0 if flew and left else 0.0)
         )
+
+
+@njit(cache=True)
+def all_finite(values: np.ndarray) -> bool:
+    """Whether every value of a float64 array is finite (one compiled pass: numpy's
+    ``isfinite(...).all()`` costs several times more on the envs' few actions)."""
+    for value in values.flat:
+        if not math.isfinite(value):
+            return False
+    return True
 
 
 class EncounterWorld:
@@ -183,42 +196,79 @@ class EncounterWorld:
         n = self.n_aircraft
         self.last_waypoints = np.zeros((n, 2))
         self.min_separation_nm = np.inf
-        self.rewards = np.zeros(n)
         self.info = np.zeros(n, dtype=INFO_RECORD)
         self._time_fraction = np.zeros(1)  # the observations' argument, refilled every step
+        self._n_neighbours = int(cfg.n_neighbours)
+        self._expose_wind = bool(cfg.expose_wind)
+        self._nearest_buffer = np.empty((1, self.n_slots))  # read by the compiled step only
+        self._start: SimpleNamespace | None = None
+        self.flying = np.zeros(n, dtype=np.bool_)
 
     # ----------------------------------------------------------------- episode
 
     def reset(self, episode_seed: int) -> None:
-        scenario = self.source.scenario(episode_seed)
         wind = episode_wind(episode_seed, self.cfg.wind_sigma)
-        self.sim = Simulation(scenario, config=self.cfg.config, wind_kt=wind, record_every=self.record_every)
-        self._wind = self.sim.wind_kt[None].copy()
+        start = self._start
+        if start is None or self.source.random_n is not None or self.record_every:
+            scenario = self.source.scenario(episode_seed)
+            self.sim = Simulation(scenario, config=self.cfg.config, wind_kt=wind, record_every=self.record_every)
+            start = self._start = self._start_of_episode(self.sim.state)
+        else:
+            # The same scenario, no recording: the world's Simulation starts again from the
+            # same initial state (what a new one would hold, minus its construction).
+            sim = self.sim
+            assert sim is not None
+            sim.state[:] = start.state
+            sim.time_s = 0.0
+            sim.wind_kt = wind
+        self._wind = wind[None].copy()
         self.episode_seed = int(episode_seed)
         self.decisions = 0
-        state = self.sim.state
-        self.last_waypoints = state[0, :, [S_WP_X, S_WP_Y]].T.copy()
-        self.flying = state[0, :, S_STATUS] == FLYING
-        self._distance = np.hypot(state[0, :, S_DEST_X] - state[0, :, S_X], state[0, :, S_DEST_Y] - state[0, :, S_Y])
-        obs, nearest = self.obs_spec.observe_with_nearest(state, np.array([self.time_fraction]), self._wind, self.n_slots)
-        self._obs = obs[0]
-        self._nearest = nearest[0, : self.n_aircraft]
-        # Neutral infos: nothing clipped, violated or lost, reward 0; the airspeed range and
-        # the separation those of the initial state.
+        self._time_fraction[0] = 0.0
+        # Fresh copies of what is handed out or updated in place later.
+        self.last_waypoints = start.waypoints.copy()
+        self.flying = start.flying.copy()
+        self._flying_spare = np.empty_like(self.flying)
+        self._distance = start.distance.copy()
+        self._distance_spare = np.empty_like(self._distance)
+        if self.cfg.expose_wind:  # the observations carry the episode's wind
+            obs, _ = self.obs_spec.observe_with_nearest(start.state, self._time_fraction, self._wind, self.n_slots)
+            self._obs = obs[0]
+        else:
+            self._obs = start.obs.copy()
+        self.info = start.info.copy()
+        self.min_separation_nm = start.min_separation_nm
+
+    def _start_of_episode(self, state: np.ndarray) -> SimpleNamespace:
+        """What a reset reports about the initial ``state`` (kept while the scenario stays):
+        the state, waypoints, flying mask, distances to go, observations (without the
+        wind) and the neutral infos: nothing clipped, violated or lost, reward 0, the
+        airspeed range and the separation those of the initial state."""
         n = self.n_aircraft
+        status = state[0, :, S_STATUS]
+        flying = status == FLYING
+        distance = np.hypot(state[0, :, S_DEST_X] - state[0, :, S_X], state[0, :, S_DEST_Y] - state[0, :, S_Y])
+        obs, nearest = self.obs_spec.observe_with_nearest(state, np.zeros(1), np.zeros((1, 2)), self.n_slots)
+        nearest_nm = nearest[0, :n]
         info = np.zeros(n, dtype=INFO_RECORD)
         airspeed = state[0, :, S_AIRSPEED]
         info["airspeed_kt"] = airspeed
         info["airspeed_min_kt"] = airspeed
         info["airspeed_max_kt"] = airspeed
-        info["distance_to_go_nm"] = self._distance
-        info["nearest_nm"] = self._nearest
-        info["arrived"] = state[0, :, S_STATUS] == ARRIVED
-        info["left_workspace"] = state[0, :, S_STATUS] == LEFT
-        self.info = info
-        self.rewards = np.zeros(n)
-        nearest_flying = self._nearest[self.flying]
-        self.min_separation_nm = float(nearest_flying.min()) if nearest_flying.size else np.inf
+        info["distance_to_go_nm"] = distance
+        info["nearest_nm"] = nearest_nm
+        info["arrived"] = status == ARRIVED
+        info["left_workspace"] = status == LEFT
+        nearest_flying = nearest_nm[flying]
+        return SimpleNamespace(
+            state=state.copy(),
+            waypoints=state[0, :, [S_WP_X, S_WP_Y]].T.copy(),
+            flying=flying,
+            distance=distance,
+            obs=obs[0],
+            info=info,
+            min_separation_nm=float(nearest_flying.min()) if nearest_flying.size else np.inf,
+        )
 
     @property
     def started(self) -> bool:
@@ -258,41 +308,46 @@ class EncounterWorld:
         """Fly one decision period with finite actions (n, 2) float64 (clipped to [-1, 1]
         here; rows of aircraft not flying are ignored). Afterwards ``rewards`` (n,),
         ``info`` (n,) ``INFO_RECORD``, ``min_separation_nm``, ``last_waypoints``,
-        ``flying`` and the observations describe the step (fresh arrays every step)."""
+        ``flying`` and the observations describe the step. The observations, ``info`` and
+        ``last_waypoints`` are fresh arrays every step (the envs hand out views of them);
+        ``flying`` and the distances to go alternate between two buffers of the world's
+        own (read them, or copy them, before the next step)."""
         sim = self.sim
         assert sim is not None
         state = sim.state
         n = self.n_aircraft
         waypoints = np.empty((1, n, 2))
         distance_nm, span_nm, angle_span_rad, limit_nm = self._mapping
-        _waypoints_from_state(actions[None], state, distance_nm, span_nm, angle_span_rad, limit_nm, waypoints)
+        _waypoints_from_state(actions.reshape(1, n, 2), state, distance_nm, span_nm, angle_span_rad, limit_nm, waypoints)
         self.last_waypoints = waypoints[0]
         if self.record_every:
             trace = sim.advance(waypoints[0], DECISION_PERIOD_S)
         else:
             trace = kernel.advance(state, waypoints, self._wind, DECISION_PERIOD_S, sim.params, scratch=self._scratch)
-            sim.time_s += float(trace.steps_done[0]) * self._dt_s
+            sim.time_s += trace.steps_done.item() * self._dt_s
         self.decisions += 1
         self._time_fraction[0] = min(1.0, sim.time_s / self._limit_s)
         obs = np.empty((1, self.n_slots, self._obs_dim), dtype=np.float32)
-        nearest = np.empty((1, self.n_slots))
         info = np.empty(n, dtype=INFO_RECORD)
-        distance = np.empty(n)
-        flying = np.empty(n, dtype=np.bool_)
+        distance, self._distance_spare = self._distance_spare, self._distance
+        flying, self._flying_spare = self._flying_spare, self.flying
         _world_after_period(
-            state, actions, self.flying, self._distance,
-            trace.min_airspeed_kt[0], trace.max_airspeed_kt[0], trace.violation_steps[0], trace.steps_flown[0],
-            trace.los_pairs[0], self._reward_weights, self._time_fraction, self._wind,
-            self.cfg.n_neighbours, self.cfg.expose_wind, self._scales, obs, nearest, info, distance, flying,
+            state, actions, self._flying_spare, self._distance_spare,
+            trace.min_airspeed_kt, trace.max_airspeed_kt, trace.violation_steps, trace.steps_flown,
+            trace.los_pairs, self._reward_weights, self._time_fraction, self._wind,
+            self._n_neighbours, self._expose_wind, self._scales, obs, self._nearest_buffer, info, distance, flying,
         )
         self._obs = obs[0]
-        self._nearest = nearest[0, :n]
         self.info = info
-        self.rewards = info["aircraft_reward"]
         self._distance = distance
         self.flying = flying
-        min_sep = float(trace.min_separation_nm[0])
+        min_sep = trace.min_separation_nm.item()
         self.min_separation_nm = np.inf if min_sep >= NO_PAIR_SEPARATION_NM else min_sep
+
+    @property
+    def rewards(self) -> np.ndarray:
+        """(n,) each aircraft's reward for the last step (0 after a reset)."""
+        return self.info["aircraft_reward"]
 
     # ----------------------------------------------------------------- infos
 
@@ -448,14 +503,14 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
             array = np.asarray(action)
             ok = array.dtype.kind in "biuf" and array.shape == (self.n_slots, 2)
             if ok:
-                array = array.astype(np.float64, copy=False)
-                ok = bool(np.isfinite(array).all())
+                array = np.ascontiguousarray(array, dtype=np.float64)
+                ok = all_finite(array)
         except (TypeError, ValueError):
             ok = False
-        if not ok:  # say what is wrong with it
+        if not ok:  # say what is wrong with it, or convert it (an object array of numbers)
             validate_step_actions(action, (self.n_slots, 2), "atc_nf_env/Encounter-v0")
-        n = world.n_aircraft
-        world.step(np.ascontiguousarray(array[:n]))
+            array = np.ascontiguousarray(action, dtype=np.float64)
+        world.step(array[: world.n_aircraft])
         terminated = world.done
         truncated = (not terminated) and world.truncated
         if self.render_mode == "human":

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import operator
 from typing import Any
 
 import numpy as np
@@ -15,12 +16,21 @@ from pettingzoo.utils import AgentSelector
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
 from atc_nf_env.envs import EnvConfig, draw_episode_seed
-from atc_nf_env.envs.centralized import AIRCRAFT_INFO_KEYS, EncounterWorld, close_renderers, render_world
+from atc_nf_env.envs.centralized import (
+    AIRCRAFT_INFO_KEYS,
+    EncounterWorld,
+    all_finite,
+    close_renderers,
+    render_world,
+)
 from atc_nf_env.scenarios import check_seed
 
 AGENT_PREFIX = "aircraft_"
 _SCALAR_INFO_KEYS = tuple(key for key in AIRCRAFT_INFO_KEYS if key != "waypoint_nm")
 _INFO_KEYS = (*_SCALAR_INFO_KEYS, "waypoint_nm", "min_separation_nm", "time_s", "episode_seed")
+_REWARD_FIELD = _SCALAR_INFO_KEYS.index("aircraft_reward")
+_ROW_INFO_KEYS = (*_SCALAR_INFO_KEYS, "waypoint_nm")
+_INFO_TEMPLATE: dict[str, Any] = dict.fromkeys(_INFO_KEYS)
 
 
 class ATCParallelEnv(ParallelEnv):
@@ -174,27 +184,96 @@ class ATCParallelEnv(ParallelEnv):
         self.world.reset(episode_seed)
         self.agents = self.possible_agents[:]
         self._live_index = self._all_index
-        obs = self.world.observe()
-        observations = dict(zip(self.agents, obs))
-        infos = self._infos(self.agents, self._live_index.tolist())
+        observations = dict(zip(self.agents, self.world.observe()))
+        infos = dict(zip(self.agents, self._info_list(None)))
         if self.render_mode == "human":
             self.render()
         return observations, infos
 
-    def _infos(self, agents: list[str], index: list[int]) -> dict[str, dict[str, Any]]:
-        """Per-agent info dicts from the world's info records (same keys at reset and step)."""
+    def _info_list(self, index: list[int] | None, rows: list[tuple] | None = None) -> list[dict[str, Any]]:
+        """Per-agent info dicts of the aircraft ``index`` (all when None) from the world's
+        info records (the same keys at reset and at every step); ``rows`` are the
+        records' ``tolist()`` when the caller has them."""
         world = self.world
-        rows = world.info.tolist()
-        waypoints = world.last_waypoints
-        common = (world.min_separation_nm, float(world.sim.time_s), world.episode_seed)  # type: ignore[union-attr]
-        wind = world.sim.wind_kt if self.cfg.expose_wind else None  # type: ignore[union-attr]
-        infos: dict[str, dict[str, Any]] = {}
-        for agent, i in zip(agents, index):
-            info = dict(zip(_INFO_KEYS, (*rows[i], waypoints[i], *common)))
-            if wind is not None:
+        if rows is None:
+            rows = world.info.tolist()  # every aircraft's scalars as Python objects, one call
+        waypoints = list(world.last_waypoints)  # (2,) views of an array fresh every step
+        if index is not None:
+            rows = [rows[i] for i in index]
+            waypoints = [waypoints[i] for i in index]
+        # Copies of a dict that has every key already (in order) and the step's common
+        # values: quicker than building each agent's dict key by key.
+        step_info = _INFO_TEMPLATE.copy()
+        step_info["min_separation_nm"] = world.min_separation_nm
+        step_info["time_s"] = float(world.sim.time_s)  # type: ignore[union-attr]
+        step_info["episode_seed"] = world.episode_seed
+        infos = []
+        for row, waypoint in zip(rows, waypoints):
+            info = step_info.copy()
+            info.update(zip(_ROW_INFO_KEYS, row + (waypoint,)))
+            infos.append(info)
+        if self.cfg.expose_wind:
+            wind = world.sim.wind_kt  # type: ignore[union-attr]
+            for info in infos:
                 info["wind_kt"] = wind.copy()
-            infos[agent] = info
         return infos
+
+    def _stacked_actions(self, values: list[Any], live: list[str]) -> np.ndarray:
+        """The live agents' actions (``values`` in the order of ``live``) as finite
+        float64 (len(live), 2); ValueError naming the culprit and what is allowed."""
+        try:
+            stacked = np.array(values)
+            # complex (its imaginary part would be dropped), objects, strings: the slow path
+            ok = stacked.dtype.kind in "biuf" and stacked.shape == (len(live), 2)
+            if ok:
+                stacked = stacked.astype(np.float64, copy=False)
+                ok = all_finite(stacked)
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:  # find the culprit and say what is wrong with it (or convert one by one)
+            stacked = np.array([_agent_action(agent, value) for agent, value in zip(live, values)])
+        return stacked
+
+    def _advance(
+        self, stacked: np.ndarray
+    ) -> tuple[list[str], list[np.ndarray], list[float], list[bool], bool, list[dict[str, Any]]]:
+        """Fly one period with the live agents' finite actions ``stacked`` (their order),
+        update ``agents``, and return, per agent live at the start (in that order): the
+        agents, observations, rewards, terminations, the truncation flag (the same for
+        all) and infos."""
+        world = self.world
+        live = self.agents
+        n = world.n_aircraft
+        all_live = len(live) == n
+        if all_live:
+            raw = stacked
+        else:
+            raw = np.zeros((n, 2))
+            raw[self._live_index] = stacked
+        world.step(raw)  # clips to the box, and reports what it clipped in the infos
+        observations = list(world.observe())  # (D,) views of an array fresh every step
+        rows = world.info.tolist()  # every aircraft's scalars as Python objects, one call
+        flying = world.flying.tolist()
+        index = None if all_live else self._live_index.tolist()
+        infos = self._info_list(index, rows)
+        if index is not None:
+            observations = [observations[i] for i in index]
+            rows = [rows[i] for i in index]
+            flying = [flying[i] for i in index]
+        rewards = [row[_REWARD_FIELD] for row in rows]
+        terminations = [not alive for alive in flying]
+        truncate = world.truncated
+        # At the time limit every agent of the step is truncated, also one that arrives or
+        # leaves on that step (then terminated too): the last step never mixes agents that
+        # are only terminated with agents that are only truncated, so wrappers that end
+        # the episode on "all terminated or all truncated" (RLlib's) end it cleanly.
+        if truncate:
+            self.agents = []
+        elif not all(flying):
+            self.agents = [agent for agent, alive in zip(live, flying) if alive]
+        if len(self.agents) != len(live):
+            self._live_index = np.array([self._index[agent] for agent in self.agents], dtype=np.int64)
+        return live, observations, rewards, terminations, truncate, infos
 
     def step(
         self, actions: dict[str, Any]
@@ -203,8 +282,7 @@ class ATCParallelEnv(ParallelEnv):
     ]:
         """Fly one decision period (300 s). ``actions`` maps every live agent to its action;
         entries for agents already done are ignored (None is fine)."""
-        world = self.world
-        if not world.started:
+        if not self.world.started:
             raise ValueError("parallel_env: step() before reset(); call reset() first")
         if not isinstance(actions, dict):
             raise ValueError(
@@ -226,12 +304,7 @@ class ATCParallelEnv(ParallelEnv):
                 )
             return {}, {}, {}, {}, {}
         try:
-            stacked = np.array([actions[agent] for agent in live])
-            # complex (its imaginary part would be dropped), objects, strings: the slow path
-            ok = stacked.dtype.kind in "biuf" and stacked.shape == (len(live), 2)
-            if ok:
-                stacked = stacked.astype(np.float64)
-                ok = bool(np.isfinite(stacked).all())
+            values = [actions[agent] for agent in live]
         except KeyError:
             unknown = [agent for agent in actions if agent not in self._index]
             if unknown:
@@ -242,56 +315,16 @@ class ATCParallelEnv(ParallelEnv):
             raise ValueError(
                 f"parallel_env: no action for live agent(s) {missing}; give one for each of {live}"
             ) from None
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:  # find the culprit and say what is wrong with it (or convert one by one)
-            stacked = np.array([_agent_action(agent, actions[agent]) for agent in live])
-        n = world.n_aircraft
-        index = self._live_index
-        if len(live) == n:
-            raw = stacked
-        else:
-            raw = np.zeros((n, 2))
-            raw[index] = stacked
-        world.step(raw)  # clips to the box, and reports what it clipped in the infos
-        obs = world.observe()
-        flying = world.flying.tolist()
-        rewards_all = world.rewards.tolist()
-        rows = world.info.tolist()
-        waypoints = world.last_waypoints
-        common = (world.min_separation_nm, world.sim.time_s, world.episode_seed)  # type: ignore[union-attr]
-        wind = world.sim.wind_kt if self.cfg.expose_wind else None  # type: ignore[union-attr]
-        truncate = world.truncated
-        observations: dict[str, np.ndarray] = {}
-        rewards: dict[str, float] = {}
-        terminations: dict[str, bool] = {}
-        infos: dict[str, dict[str, Any]] = {}
-        still_flying: list[str] = []
-        for agent, i in zip(live, index.tolist()):
-            observations[agent] = obs[i]
-            rewards[agent] = rewards_all[i]
-            alive = flying[i]
-            terminations[agent] = not alive
-            if alive:
-                still_flying.append(agent)
-            info = dict(zip(_INFO_KEYS, (*rows[i], waypoints[i], *common)))
-            if wind is not None:
-                info["wind_kt"] = wind.copy()
-            infos[agent] = info
-        # At the time limit every agent of the step is truncated, also one that arrives or
-        # leaves on that step (then terminated too): the last step never mixes agents that
-        # are only terminated with agents that are only truncated, so wrappers that end
-        # the episode on "all terminated or all truncated" (RLlib's) end it cleanly.
-        truncations = dict.fromkeys(live, truncate)
-        if truncate:
-            self.agents = []
-        elif len(still_flying) != len(live):
-            self.agents = still_flying
-        if len(self.agents) != len(live):
-            self._live_index = np.array([self._index[agent] for agent in self.agents], dtype=np.int64)
+        live, observations, rewards, terminations, truncate, infos = self._advance(self._stacked_actions(values, live))
         if self.render_mode == "human":
             self.render()
-        return observations, rewards, terminations, truncations, infos
+        return (
+            dict(zip(live, observations)),
+            dict(zip(live, rewards)),
+            dict(zip(live, terminations)),
+            dict.fromkeys(live, truncate),
+            dict(zip(live, infos)),
+        )
 
     def state(self) -> np.ndarray:
         """The global state (``state_space``): every aircraft slot in the workspace frame
@@ -339,43 +372,87 @@ def parallel_env(**kwargs: Any) -> ATCParallelEnv:
 class raw_env(parallel_to_aec_wrapper):
     """The AEC form without PettingZoo's order-enforcing wrapper: agents act in turn
     (``aircraft_0`` first) and the world flies one period when the last live agent has
-    acted. Same keyword arguments as ``parallel_env``."""
+    acted. Same keyword arguments as ``parallel_env``.
+
+    It behaves as PettingZoo's ``parallel_to_aec_wrapper`` around ``parallel_env`` (the
+    same agents, selections, rewards, cumulative rewards, terminations, truncations,
+    infos and observations after every call), with less work per agent: the turn is a
+    position in the live agents' list, the actions wait in a list, and the period's
+    results are put in the dicts once, without the wrapper's copies."""
+
+    env: ATCParallelEnv
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(ATCParallelEnv(**kwargs))
+        self._order: list[str] = []
+        self._turn = 0
+        self._pending: list[Any] = []
+
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
+        self._observations, self.infos = self.env.reset(seed=seed, options=options)
+        self._order = self.env.agents
+        self._turn = 0
+        self._pending = [None] * len(self._order)
+        self.agents = self._order[:]
+        self.agent_selection = self._order[0]
+        self.terminations = dict.fromkeys(self.agents, False)
+        self.truncations = dict.fromkeys(self.agents, False)
+        self.rewards = dict.fromkeys(self.agents, 0)
+        self._cumulative_rewards = dict.fromkeys(self.agents, 0)
+        self._skip_agent_selection = None
+
+    def observe(self, agent: str) -> np.ndarray:
+        return self._observations[agent]
+
+    def last(self, observe: bool = True) -> tuple[np.ndarray | None, float, bool, bool, dict[str, Any]]:
+        agent = self.agent_selection
+        return (
+            self._observations[agent] if observe else None,
+            self._cumulative_rewards[agent],
+            self.terminations[agent],
+            self.truncations[agent],
+            self.infos[agent],
+        )
 
     def step(self, action: Any) -> None:
-        """PettingZoo's ``parallel_to_aec_wrapper.step`` without its copies of the parallel
-        env's dicts (fresh every step here) and its sort when no agent ended."""
+        """Store the selected agent's action (None for an agent that has ended), and fly
+        the period when the last live agent has acted."""
         agent = self.agent_selection
         if self.terminations[agent] or self.truncations[agent]:
-            del self._actions[agent]
             self._was_dead_step(action)
             return
-        self._actions[agent] = action
-        if not self._agent_selector.is_last():
-            if self._agent_selector.is_first():
+        turn = self._turn
+        order = self._order
+        self._pending[turn] = action
+        if turn + 1 < len(order):
+            if turn == 0:  # the cycle's first action: last period's rewards are spent
                 self._clear_rewards()
-            self.agent_selection = self._agent_selector.next()
+            self._turn = turn + 1
+            self.agent_selection = order[turn + 1]
             return
-        observations, rewards, terminations, truncations, infos = self.env.step(self._actions)
-        self._observations = observations
-        self.terminations = terminations
-        self.truncations = truncations
-        self.infos = infos
-        self.rewards = rewards
-        self._cumulative_rewards = dict(rewards)
-        live = self.env.agents
-        if len(live) == len(observations):  # nobody ended: no dead agent to step first
-            self.agents = list(live)
-        else:
-            still = set(live)
-            self.agents = live + [name for name in sorted(observations, key=str) if name not in still]
-        if live:
-            self._agent_selector = AgentSelector(live)
-            self.agent_selection = self._agent_selector.reset()
-        if len(live) != len(observations):
-            self._deads_step_first()
+        par = self.env
+        live, observations, rewards, terminations, truncate, infos = par._advance(
+            par._stacked_actions(self._pending[: len(order)], order)
+        )
+        self._observations = dict(zip(live, observations))
+        self.rewards = dict(zip(live, rewards))
+        self._cumulative_rewards = self.rewards.copy()
+        self.terminations = dict(zip(live, terminations))
+        self.truncations = dict.fromkeys(live, truncate)
+        self.infos = dict(zip(live, infos))
+        still = par.agents
+        self._turn = 0
+        if len(still) == len(live):  # nobody ended: no dead agent to step first
+            self.agents = still[:]
+            self.agent_selection = still[0]
+            return
+        ended = [agent for agent in live if agent not in still]
+        self.agents = still + sorted(ended, key=str)
+        if still:
+            self._order = still
+            self._pending = [None] * len(still)
+            self.agent_selection = still[0]
+        self._deads_step_first()
 
     def render(self, mode: str | None = None) -> np.ndarray | None:
         """See ``ATCParallelEnv.render``."""
@@ -383,20 +460,19 @@ class raw_env(parallel_to_aec_wrapper):
 
 
 def _forwarded(name: str) -> property:
-    def get(self: "_OrderEnforcingWrapper") -> Any:
-        if not self._has_reset:
-            raise AttributeError(f"{name} cannot be accessed before reset")
-        return getattr(self.env, name)
-
-    return property(get, doc=f"The wrapped env's ``{name}`` (after reset).")
+    # A C-level look-up on the raw env. Before the first reset the raw env has none of
+    # these attributes: the AttributeError sends Python to the wrapper's ``__getattr__``,
+    # which raises PettingZoo's "... cannot be accessed before reset".
+    return property(operator.attrgetter(f"env.{name}"), doc=f"The wrapped env's ``{name}`` (after reset).")
 
 
 class _OrderEnforcingWrapper(wrappers.OrderEnforcingWrapper):
     """PettingZoo's wrapper, with ``render`` taking the mode that RLlib's wrapper passes,
-    and the attributes that clients read at every agent step (``agents``,
-    ``agent_selection``, ``terminations``, ..., ``last()``) forwarded directly: PettingZoo's
-    wrapper finds them through ``__getattr__``, which cost more than the env's own
-    bookkeeping. Same checks: each raises AttributeError before the first reset."""
+    and what clients use at every agent step (``agents``, ``agent_selection``,
+    ``terminations``, ..., ``last()``, ``observe()``, ``step()``) reached directly:
+    PettingZoo's wrapper finds the attributes through ``__getattr__`` and the methods
+    through its base class, which cost more than the env's own bookkeeping. The same
+    errors before the first reset."""
 
     agents = _forwarded("agents")
     agent_selection = _forwarded("agent_selection")
@@ -405,6 +481,22 @@ class _OrderEnforcingWrapper(wrappers.OrderEnforcingWrapper):
     rewards = _forwarded("rewards")
     infos = _forwarded("infos")
     _cumulative_rewards = _forwarded("_cumulative_rewards")
+
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
+        super().reset(seed=seed, options=options)
+        # From the first reset on, the wrapper's checks before ``last`` and ``observe``
+        # always pass: the raw env's methods answer directly.
+        self.last = self.env.last  # type: ignore[method-assign]
+        self.observe = self.env.observe  # type: ignore[method-assign]
+
+    def step(self, action: Any) -> None:
+        if not self._has_reset:
+            EnvLogger.error_step_before_reset()
+        self._has_updated = True
+        if self.env.agents:
+            self.env.step(action)
+        else:
+            EnvLogger.warn_step_after_terminated_truncated()
 
     def last(self, observe: bool = True) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         if not self._has_reset:
