@@ -805,8 +805,7 @@ class _LazyCandidates:
         before = states[:, :, S_X : S_Y + 1].copy()
         threads = numba.get_num_threads()
         if rows.size < _PARALLEL_FROM_WORLDS and threads > 1:
-            # A small batch on one thread: waking the thread pool costs more than its
-            # work, and far more while other processes hold the cores.
+            # A small batch on one thread (see _PARALLEL_FROM_WORLDS).
             numba.set_num_threads(1)
             try:
                 trace = kernel.advance(
@@ -902,8 +901,11 @@ class _LazyCandidates:
 #: batch, as the first feasible candidate is usually among the first few dozen.
 _FIRST_FEASIBLE_BATCH = 8
 
-#: Batches of fewer candidates are flown on one thread.
-_PARALLEL_FROM_WORLDS = 64
+#: Batches of fewer candidates are flown on one thread. Waking numba's thread pool, and
+#: its threads spinning after the parallel loop, cost more than they save on a batch of a
+#: few hundred candidates while other processes hold the cores (on two shared cores a
+#: threshold of 64 made the lazy search's mean decision slower than 256 or one thread).
+_PARALLEL_FROM_WORLDS = 256
 
 
 @njit(cache=True)
