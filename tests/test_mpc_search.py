@@ -196,3 +196,45 @@ def test_cli_search_option_reaches_the_mpc(monkeypatch):
     assert made[-1].get("search") == "exhaustive"
     with pytest.raises(SystemExit):
         cli.main(argv + ["fast"])
+
+
+def test_small_batches_fly_on_one_thread_and_the_thread_count_comes_back(monkeypatch):
+    """A batch under ``_PARALLEL_FROM_WORLDS`` candidates flies on one numba thread, a
+    larger one on all of them, and the caller's thread count is restored, also when the
+    kernel raises."""
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba has one thread here")
+    threads = numba.get_num_threads()
+    numba.set_num_threads(2)
+    try:
+        scenario = converging(4)
+        view = Simulation(scenario).view()
+        policy = MCMCMPC(extractions=mcmc_mpc._PARALLEL_FROM_WORLDS + 10)
+        policy.reset(scenario, SimConfig(), seed=0)
+        proposals, _ = policy._propose(view)
+        candidates = _LazyCandidates(policy, view.state, proposals, policy._prediction_wind())
+        seen = []
+        original = mcmc_mpc.kernel.advance
+
+        def spy(state, *args, **kwargs):
+            seen.append((state.shape[0], numba.get_num_threads()))
+            return original(state, *args, **kwargs)
+
+        monkeypatch.setattr(mcmc_mpc.kernel, "advance", spy)
+        small = np.arange(3, 13)
+        candidates.advance(small)
+        candidates.advance(np.setdiff1d(np.arange(proposals.shape[0]), small))
+        assert seen == [(10, 1), (mcmc_mpc._PARALLEL_FROM_WORLDS, 2)]
+        assert numba.get_num_threads() == 2
+
+        def broken(*args, **kwargs):
+            raise FloatingPointError("the integration produced NaN")
+
+        monkeypatch.setattr(mcmc_mpc.kernel, "advance", broken)
+        with pytest.raises(FloatingPointError):
+            candidates.advance(np.arange(20, 25))
+        assert numba.get_num_threads() == 2
+    finally:
+        numba.set_num_threads(threads)
