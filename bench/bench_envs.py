@@ -298,6 +298,13 @@ def main(argv: list[str] | None = None) -> int:
             "",
             *single_rows,
             "",
+            "Why per-round ratios (until this version the ratio was that of the medians of 7 rounds of 1-s "
+            "chunks in a fixed order): on a shared machine the load moves within seconds, and two medians "
+            "can pair figures taken under different loads; a round's chunks run within about a second of "
+            "each other, and the quartiles show how far the load moved the ratio. On this 2-core machine the "
+            "ratios fell as the load rose (the envs' Python code slowed more than the compiled kernel): "
+            "compare ratios taken at similar load averages.",
+            "",
             f"Aircraft-decisions per second (an aircraft flying one decision period; finished aircraft "
             f"and resetting worlds not counted), B = {b} worlds in one process:",
             "",

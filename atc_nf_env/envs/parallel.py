@@ -432,7 +432,7 @@ class raw_env(parallel_to_aec_wrapper):
             return
         par = self.env
         live, observations, rewards, terminations, truncate, infos = par._advance(
-            par._stacked_actions(self._pending[: len(order)], order)
+            par._stacked_actions(self._pending, order)  # one entry per agent of ``order``
         )
         self._observations = dict(zip(live, observations))
         self.rewards = dict(zip(live, rewards))
