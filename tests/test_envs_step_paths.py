@@ -268,3 +268,27 @@ def test_a_world_reset_after_episodes_flies_as_a_fresh_one(kwargs: dict[str, Any
         action = used_gym.action_space.sample()
         fresh_gym.action_space.sample()
         assert_same_value_deep(used_gym.step(action), fresh_gym.step(action), f"gym step {step}")
+
+
+def test_a_copied_aec_env_flies_on_alone() -> None:
+    """After its first reset the AEC env's wrapper answers ``last``/``observe`` with the raw
+    env's methods: a deep copy (or a pickle) must answer with its own raw env's."""
+    import pickle
+
+    env = atc_nf_env.env(scenario="converging-3")
+    env.reset(seed=1)
+    env.step(np.zeros(2))
+    copies = [copy.deepcopy(env), pickle.loads(pickle.dumps(env))]
+    for other in copies:
+        assert other.last.__self__ is other.env and other.observe.__self__ is other.env
+    for step in range(5):
+        for index, other in enumerate([env, *copies]):
+            other.step(np.full(2, 0.1 * index, dtype=np.float32))
+    last = [other.last() for other in (env, *copies)]
+    assert last[1][0].tobytes() != last[0][0].tobytes() and last[2][0].tobytes() != last[1][0].tobytes()
+    replay = atc_nf_env.env(scenario="converging-3")
+    replay.reset(seed=1)
+    replay.step(np.zeros(2))
+    for step in range(5):
+        replay.step(np.full(2, 0.1, dtype=np.float32))
+    assert_same_value_deep(replay.last(), last[1], "the deep copy")
