@@ -177,11 +177,14 @@ def single_world_rates(n_aircraft: int, rounds: int, seconds: float) -> dict[str
         counts[name] = max(20, int(rate(loop, 200) * seconds))
     names = list(loops)
     rates: dict[str, list[float]] = {name: [] for name in loops}
+    wall0, cpu0 = time.perf_counter(), time.process_time()
     for round_index in range(rounds):
         shift = round_index % len(names)
         for name in names[shift:] + names[:shift]:
             rates[name].append(rate(loops[name], counts[name]))
-    result = {"kernel": {"rate": statistics.median(rates["kernel"])}}
+    # The process's CPU time over its wall time: below 1, other jobs took the core from it.
+    cpu_share = (time.process_time() - cpu0) / (time.perf_counter() - wall0)
+    result = {"kernel": {"rate": statistics.median(rates["kernel"]), "cpu_share": cpu_share}}
     for name in names[1:]:
         ratios = [env_rate / kernel_rate for env_rate, kernel_rate in zip(rates[name], rates["kernel"])]
         q1, _, q3 = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else (ratios[0],) * 3
@@ -250,6 +253,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--write needs the whole section: leave out --skip-vector")
     b = args.worlds
     loads = [os.getloadavg()[0]]
+    cpu_shares: list[float] = []
 
     single_rows = [
         "| scenario | bare kernel (periods/s) | parallel_env (steps/s) | ratio [quartiles] | AEC env (cycles/s) "
@@ -263,6 +267,7 @@ def main(argv: list[str] | None = None) -> int:
             e = r[name]
             cells += [f"{e['rate']:,.0f}", f"**{e['ratio']:.2f}** [{e['q1']:.2f}–{e['q3']:.2f}]"]
         single_rows.append("| " + " | ".join(cells) + " |")
+        cpu_shares.append(r["kernel"]["cpu_share"])
         loads.append(os.getloadavg()[0])
         print(single_rows[-1], flush=True)
 
@@ -294,7 +299,9 @@ def main(argv: list[str] | None = None) -> int:
             "random actions mapped to waypoints as the envs map them), one process, every loop warmed up "
             f"first (compilation not timed), then {args.rounds} rounds of {args.seconds:g}-s chunks, one of "
             "each loop per round in rotating order. Rates: medians over rounds. Ratio: median over rounds "
-            "of env rate / kernel rate in the same round, with its quartiles (target >= 0.5):",
+            "of env rate / kernel rate in the same round, with its quartiles (target >= 0.5). The bench "
+            f"process ran {min(cpu_shares):.0%}–{max(cpu_shares):.0%} of its wall time on a core (CPU time / "
+            "wall time over each scenario's rounds; less: other jobs took the core from it):",
             "",
             *single_rows,
             "",
