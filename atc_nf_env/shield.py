@@ -15,17 +15,25 @@ so it wraps the MCMC-MPC, the NF alone and trained agents alike (``atc-nf fly|ev
    uses an estimate, and its error moves the airspeed) and the separation minimum
    (the wind moves every aircraft alike, so separation needs no margin);
 3. if the prediction is safe, returns the policy's waypoints unchanged (the same array);
-4. otherwise predicts, in one batch, a small set of alternatives: for each aircraft the
-   prediction blames (an envelope breach or a loss of separation), its proposed
-   waypoint turned by ±10°, ±20°, ±40°, moved to 100 or 130 nm in the same direction,
-   or replaced by the homing waypoint 100 or 130 nm out, every other aircraft keeping
-   its proposal; only if none of these is safe, a second batch changes all flying
-   aircraft together: all homing (100, 130 nm), all proposals turned by ±20° or ±40°.
-   The closest safe alternative is applied: fewest aircraft changed, then the least
-   total displacement of the changed waypoints (nm);
+4. otherwise tries a small set of alternatives: for each aircraft the prediction blames
+   (an envelope breach or a loss of separation), its proposed waypoint turned by ±10°,
+   ±20°, ±40°, moved to 100 or 130 nm in the same direction, or replaced by the homing
+   waypoint 100 or 130 nm out, every other aircraft keeping its proposal; only if none of
+   these is safe, all flying aircraft changed together: all homing (100, 130 nm), all
+   proposals turned by ±20° or ±40°. The closest safe alternative is applied: fewest
+   aircraft changed, then the least total displacement of the changed waypoints (nm).
+   The alternatives are predicted one world at a time in that order, and the first safe
+   one is applied: the choice a batch prediction of the whole set would make, without
+   flying the alternatives ranked after it;
 5. if no alternative is safe, applies the MCMC-MPC's decision (``fallback="mpc"``,
    the policy ``mpc`` of the registry, with the filter's wind estimate), or the
    alternative that stayed safe for the most integration steps (``fallback="least-bad"``).
+
+The stall rule (``stall_progress_nm``, ``stall_periods``; on by default) keeps a policy
+from holding an aircraft short of home, which no safety check catches: an aircraft no
+closer to its destination than ``stall_periods`` periods ago is, from then on until it
+arrives, flown by the MCMC-MPC's decision (the homing waypoint with
+``fallback="least-bad"``), before the waypoint set is checked as above.
 
 The filter sees what the policy sees, the state and not the wind. Its wind estimate is
 the MCMC-MPC's "estimated" model: after each period, the drift of the aircraft from
@@ -33,10 +41,12 @@ where the filter predicted the applied waypoints would put them, divided by T.
 
 ``episode_info()`` reports the wrapped policy's diagnostics with the filter's counts
 added under names of their own (``SHIELD_INFO_KEYS``, all prefixed ``shield_``; the same
-keys at every call): decisions seen, decisions changed, aircraft changed, decisions
-whose change was needed only by the look-ahead period, MPC fallbacks, and decisions
-applied although predicted unsafe (``shield_unresolved``: a least-bad fallback, or an MPC
-decision the filter's prediction still finds unsafe).
+keys at every call): decisions seen, decisions changed for safety, aircraft changed,
+decisions whose change was needed only by the look-ahead period, by kind the decisions
+settled by a single-aircraft alternative, by an all-aircraft one and by the MPC fallback,
+decisions applied although predicted unsafe (``shield_unresolved``: a least-bad fallback,
+or an MPC decision the filter's prediction still finds unsafe), aircraft handed over by
+the stall rule and the decisions in which it flew one.
 
 Units: nautical miles, knots, seconds, radians.
 """
@@ -66,8 +76,12 @@ SHIELD_INFO_KEYS = (
     "shield_filtered",
     "shield_aircraft_changed",
     "shield_filtered_for_lookahead",
+    "shield_single_changes",
+    "shield_joint_changes",
     "shield_mpc_fallbacks",
     "shield_unresolved",
+    "shield_stalled_aircraft",
+    "shield_homing_decisions",
 )
 
 #: Turns of a proposed waypoint about its aircraft tried per aircraft, rad.
@@ -76,6 +90,11 @@ TURNS_RAD = tuple(math.radians(a) for a in (10.0, -10.0, 20.0, -20.0, 40.0, -40.
 JOINT_TURNS_RAD = tuple(math.radians(a) for a in (20.0, -20.0, 40.0, -40.0))
 #: Waypoint distances tried in the proposal's direction and toward home, nm.
 DISTANCES_NM = (100.0, 130.0)
+
+
+#: The state fields the filter reads per aircraft as plain numbers, and their places.
+_ROW_FIELDS = [S_X, S_Y, S_HEADING, S_DEST_X, S_DEST_Y, S_STATUS]
+_X, _Y, _HEADING, _DEST_X, _DEST_Y, _STATUS = range(len(_ROW_FIELDS))
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
@@ -107,6 +126,14 @@ class SafetyFilter:
             (a waypoint behind the aircraft commands a reverse airspeed).
         period_s: the decision period T, s.
         mpc_settings: settings of the fallback MPC (``MPCSettings`` field names).
+        stall_progress_nm: the stall rule: an aircraft that came less than this much
+            closer to its destination over the last ``stall_periods`` periods is flown by
+            the MCMC-MPC's decision from then on until it arrives (by the homing waypoint
+            of the look-ahead period with ``fallback="least-bad"``), nm; None turns the
+            rule off. The default, 0 nm, hands over an aircraft no closer to home than
+            ``stall_periods`` periods ago (holding, circling, flown away; the README's
+            "Safety filter" says what it fixes and what it costs).
+        stall_periods: the stall rule's window, periods of ``period_s``.
 
     Example:
         >>> from atc_nf_env.episode import run_episode
@@ -131,6 +158,8 @@ class SafetyFilter:
         recovery_angle_rad: float = math.pi / 3,
         period_s: float = DECISION_PERIOD_S,
         mpc_settings: dict[str, Any] | None = None,
+        stall_progress_nm: float | None = 0.0,
+        stall_periods: int = 4,
     ) -> None:
         if isinstance(policy, SafetyFilter):
             raise TypeError("policy is already a SafetyFilter; wrap the policy itself once")
@@ -153,6 +182,12 @@ class SafetyFilter:
         self.recovery_angle_rad = _finite_number("recovery_angle_rad", recovery_angle_rad, 1e-6, math.pi / 2)
         self.period_s = _finite_number("period_s", period_s, 1e-9, 86400.0)
         self.mpc_settings = dict(mpc_settings or {})
+        self.stall_progress_nm = (
+            None if stall_progress_nm is None else _finite_number("stall_progress_nm", stall_progress_nm, -1000.0, 1000.0)
+        )
+        if isinstance(stall_periods, bool) or not isinstance(stall_periods, int) or not 1 <= stall_periods <= 100:
+            raise ValueError(f"stall_periods = {stall_periods!r}: must be an integer in [1, 100]")
+        self.stall_periods = stall_periods
         self.name = f"{getattr(policy, 'name', type(policy).__name__)}+shield"
         self._mpc: Policy | None = None
         if fallback == "mpc":
@@ -161,6 +196,7 @@ class SafetyFilter:
             self._mpc = make_policy("mpc", **self.mpc_settings)
         self._params: np.ndarray | None = None
         self._scratch = kernel.KernelScratch()
+        self._scratch_one = kernel.KernelScratch()
         self._counts = dict.fromkeys(SHIELD_INFO_KEYS, 0)
         self._wind_estimate_kt = np.zeros(2)
         self._wind_1 = np.zeros((1, 2))
@@ -187,6 +223,8 @@ class SafetyFilter:
         self._predicted_positions = None
         self._predicted_flying = None
         self._predicted_time_s = -1.0
+        self._distance_history: list[tuple[float, list[float]]] = []
+        self._homebound = [False] * scenario.n_aircraft
         if not SafetyFilter._batch_warm:
             # Load the batched kernel (numba's cache, or a compilation) now, not inside the
             # first timed decision that needs alternatives.
@@ -205,63 +243,86 @@ class SafetyFilter:
         if np.iscomplexobj(proposal):
             raise ValueError(f"{type(self.policy).__name__}.act returned complex waypoints; expected real (N, 2) nm")
         proposal = np.asarray(proposal, dtype=np.float64)
-        n = view.state.shape[0]
+        state = view.state
+        n = state.shape[0]
         if proposal.shape != (n, 2):
             raise ValueError(f"{type(self.policy).__name__}.act returned shape {proposal.shape}; expected ({n}, 2) nm")
         if not np.isfinite(proposal).all():
             raise ValueError(f"{type(self.policy).__name__}.act returned NaN or inf waypoints: {proposal.tolist()}")
-        flying = view.state[:, S_STATUS] == FLYING
-        self._update_wind_estimate(view, flying)
-        self._counts["shield_decisions"] += 1
-        if not flying.any():
+        counts = self._counts
+        counts["shield_decisions"] += 1
+        # Plain Python numbers for the per-aircraft bookkeeping: a few aircraft cost less
+        # as scalars than as array operations.
+        rows = state[:, _ROW_FIELDS].tolist()
+        flying = [row[_STATUS] == FLYING for row in rows]
+        self._update_wind_estimate(view, rows, flying)
+        if not any(flying):
             return proposal
-        planned = proposal if flying.all() else np.where(flying[:, None], proposal, view.state[:, S_WP_X : S_WP_Y + 1])
-        breach = self._proposal_breach(view, planned)
-        if breach is None:
-            return proposal
-        survived, period1_ok, blamed = breach
-        # Unsafe: the alternatives, one batch of single-aircraft changes, then (only if
-        # none is safe: they would rank first) one of all-aircraft changes.
+        planned = proposal if all(flying) else np.where(np.array(flying)[:, None], proposal,
+                                                        state[:, S_WP_X : S_WP_Y + 1])
+        homed = self._stalled(view.time_s, rows, flying)
+        if homed:
+            # The stall rule: these aircraft fly aimed home instead of the policy's waypoint.
+            planned = planned.copy()
+            # The MCMC-MPC's decision for them (the filter's wind estimate shared), every
+            # other aircraft keeping the policy's waypoint.
+            if self._mpc is None:
+                home = self._homing_rows(rows, planned)
+                for i in homed:
+                    planned[i] = home[i]
+            else:
+                self._share_wind_estimate()
+                decided = np.asarray(self._mpc.act(view), dtype=np.float64)
+                for i in homed:
+                    planned[i] = decided[i]
+        outcome = self._check(state, planned)
+        if outcome[0] is None:
+            self._remember(view, outcome[3], outcome[4])
+            if not homed:
+                return proposal
+            counts["shield_homing_decisions"] += 1
+            return self._apply(proposal, planned, flying)
+        survived, period1_ok, blamed = outcome[0], outcome[1], outcome[2]
+        counts["shield_filtered"] += 1
+        if homed:
+            counts["shield_homing_decisions"] += 1
+        if period1_ok:
+            counts["shield_filtered_for_lookahead"] += 1
+        # Unsafe: the alternatives in the order they would be chosen (fewest aircraft
+        # changed, then the least displacement), each predicted alone until the first safe
+        # one: single-aircraft changes of the blamed aircraft, then all-aircraft ones.
         tried = []
         for joint in (False, True):
             candidates, changed = self._alternatives(view, planned, blamed, joint)
-            survived_c, positions_c, alive_c = self._predict(view.state, candidates)
-            tried.append((candidates, changed, survived_c))
-            safe = survived_c == self._full_steps()
-            if safe.any():
-                break
-        self._counts["shield_filtered"] += 1
-        if period1_ok:
-            self._counts["shield_filtered_for_lookahead"] += 1
-        if safe.any():
             displacement = np.hypot(*(candidates - planned[None]).transpose(2, 0, 1)).sum(axis=1)
-            order = np.lexsort((displacement, changed.sum(axis=1), ~safe))
-            best = int(order[0])
-            applied = np.where(changed[best][:, None], candidates[best], proposal)
-            self._counts["shield_aircraft_changed"] += int(changed[best].sum())
-            self._remember(view, positions_c[best], alive_c[best])
-            return applied
+            tried.append((candidates, changed))
+            for index in np.lexsort((displacement, changed.sum(axis=1))):
+                candidate = candidates[index]
+                result = self._check(state, candidate)
+                if result[0] is None:
+                    counts["shield_joint_changes" if joint else "shield_single_changes"] += 1
+                    self._remember(view, result[3], result[4])
+                    return self._apply(proposal, candidate, flying)
         if self._mpc is not None:
-            self._counts["shield_mpc_fallbacks"] += 1
+            counts["shield_mpc_fallbacks"] += 1
             self._share_wind_estimate()
             decided = np.asarray(self._mpc.act(view), dtype=np.float64)
-            applied = np.where(flying[:, None], decided, proposal)
-            survived_m, positions_m, alive_m = self._predict(view.state, applied[None])
+            applied = np.where(np.array(flying)[:, None], decided, proposal)
+            survived_m, positions_m, alive_m = self._predict(state, applied[None])
             if survived_m[0] < self._full_steps():
-                self._counts["shield_unresolved"] += 1
-            self._counts["shield_aircraft_changed"] += int((flying & (applied != proposal).any(axis=1)).sum())
+                counts["shield_unresolved"] += 1
+            counts["shield_aircraft_changed"] += int((np.array(flying) & (applied != proposal).any(axis=1)).sum())
             self._remember(view, positions_m[0], alive_m[0])
             return applied
-        self._counts["shield_unresolved"] += 1
-        candidates, changed, survived_c = (np.concatenate(parts) for parts in zip(*tried))
+        counts["shield_unresolved"] += 1
+        candidates, changed = (np.concatenate(parts) for parts in zip(*tried))
+        survived_c = self._predict(state, candidates)[0]
         displacement = np.hypot(*(candidates - planned[None]).transpose(2, 0, 1)).sum(axis=1)
         best = int(np.lexsort((displacement, changed.sum(axis=1), -survived_c))[0])
         if survived_c[best] <= survived:
-            return proposal  # no alternative stays safe longer than the policy's own
-        applied = np.where(changed[best][:, None], candidates[best], proposal)
-        self._counts["shield_aircraft_changed"] += int(changed[best].sum())
+            return self._apply(proposal, planned, flying)  # no alternative stays safe longer than the plan
         self._predicted_positions = None  # a prediction cut short at a breach says nothing of the wind
-        return applied
+        return self._apply(proposal, candidates[best], flying)
 
     def episode_info(self) -> dict[str, Any]:
         """The wrapped policy's diagnostics and the filter's counts (``SHIELD_INFO_KEYS``)."""
@@ -275,26 +336,35 @@ class SafetyFilter:
     def _full_steps(self) -> int:
         return self.lookahead_periods * self._period_steps
 
-    def _proposal_breach(self, view: WorldView, planned: np.ndarray) -> tuple[int, bool, np.ndarray] | None:
-        """None if one waypoint set (N, 2) is predicted safe over the look-ahead (and its
-        prediction is remembered), else (integration steps it stayed safe, whether the first
-        period was safe, the aircraft the breach involved (N,)). The common case, kept to
-        the fewest array operations."""
-        state = view.state[None].copy()
-        trace = kernel.advance(state, planned[None], self._wind_1, self.period_s, self._params, scratch=self._scratch)
+    def _apply(self, proposal: np.ndarray, applied: np.ndarray, flying: list[bool]) -> np.ndarray:
+        """``applied`` for the flying aircraft, the proposal for the others; counts the
+        aircraft whose waypoint differs from the proposal."""
+        changed = [f and (a[0] != p[0] or a[1] != p[1]) for f, a, p in zip(flying, applied.tolist(), proposal.tolist())]
+        self._counts["shield_aircraft_changed"] += sum(changed)
+        return np.where(np.array(changed)[:, None], applied, proposal)
+
+    def _check(
+        self, state: np.ndarray, planned: np.ndarray
+    ) -> tuple[int | None, bool, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """Predict one waypoint set (N, 2) over the look-ahead, one world from a copy of
+        ``state``. Safe: (None, True, None, positions (N, 2) and flying flags (N,) after
+        the first period). Unsafe: (integration steps it stayed safe, whether the first
+        period was safe, the aircraft the breach involved (N,), None, None). The common
+        case, kept to the fewest array operations."""
+        world = state[None].copy()
+        trace = kernel.advance(world, planned[None], self._wind_1, self.period_s, self._params,
+                               scratch=self._scratch_one)
         if trace.violated[0]:
-            return int(trace.steps_done[0]) - 1, False, self._blamed(trace)
-        positions = state[0, :, S_X : S_Y + 1].copy()
-        alive = state[0, :, S_STATUS] == FLYING
+            return int(trace.steps_done[0]) - 1, False, self._blamed(trace), None, None
+        positions = world[0, :, S_X : S_Y + 1].copy()
+        alive = world[0, :, S_STATUS] == FLYING
         if self.lookahead_periods == 2 and alive.any():
-            home = self._homing_one(state[0], planned)
-            trace = kernel.advance(state, home, self._wind_1, self.period_s, self._params, scratch=self._scratch)
+            home = self._homing_rows(world[0][:, _ROW_FIELDS].tolist(), planned)
+            trace = kernel.advance(world, home[None], self._wind_1, self.period_s, self._params,
+                                   scratch=self._scratch_one)
             if trace.violated[0]:
-                return self._period_steps + int(trace.steps_done[0]) - 1, True, self._blamed(trace)
-        self._predicted_positions = positions
-        self._predicted_flying = alive
-        self._predicted_time_s = view.time_s + self.period_s
-        return None
+                return self._period_steps + int(trace.steps_done[0]) - 1, True, self._blamed(trace), None, None
+        return None, True, None, positions, alive
 
     @staticmethod
     def _blamed(trace: kernel.Trace) -> np.ndarray:
@@ -346,25 +416,44 @@ class SafetyFilter:
         direction = heading + np.clip(_wrap(bearing - heading), -self.recovery_angle_rad, self.recovery_angle_rad)
         return self._inside(position + distance_nm * np.stack([np.cos(direction), np.sin(direction)], axis=-1))
 
-    def _homing_one(self, state: np.ndarray, keep: np.ndarray) -> np.ndarray:
-        """``_homing`` of one world (N, N_STATE) as (1, N, 2), with scalar arithmetic (a
-        handful of aircraft: cheaper than array operations); aircraft not flying keep ``keep``."""
-        home = keep[None].copy()
+    def _homing_rows(self, rows: list[list[float]], keep: np.ndarray) -> np.ndarray:
+        """``_homing`` of one world as (N, 2), from its aircraft's ``_ROW_FIELDS`` as plain
+        numbers (a handful of aircraft: cheaper than array operations); aircraft not flying
+        keep ``keep``."""
+        home = keep.tolist()
         limit = self._waypoint_limit_nm
         turn = self.recovery_angle_rad
         distance = self.home_distance_nm
-        for i in range(state.shape[0]):
-            if state[i, S_STATUS] != FLYING:
+        for i, (x, y, heading, dest_x, dest_y, status) in enumerate(rows):
+            if status != FLYING:
                 continue
-            x, y, heading = state[i, S_X], state[i, S_Y], state[i, S_HEADING]
-            bearing = math.atan2(state[i, S_DEST_Y] - y, state[i, S_DEST_X] - x)
+            bearing = math.atan2(dest_y - y, dest_x - x)
             error = (bearing - heading + math.pi) % (2.0 * math.pi) - math.pi
             direction = heading + min(max(error, -turn), turn)
             wx, wy = x + distance * math.cos(direction), y + distance * math.sin(direction)
-            radius = math.hypot(wx, wy)
-            scale = min(1.0, limit / max(radius, 1e-12))
-            home[0, i, 0], home[0, i, 1] = wx * scale, wy * scale
-        return home
+            scale = min(1.0, limit / max(math.hypot(wx, wy), 1e-12))
+            home[i] = [wx * scale, wy * scale]
+        return np.array(home)
+
+    def _stalled(self, time_s: float, rows: list[list[float]], flying: list[bool]) -> list[int]:
+        """The flying aircraft the stall rule hands to the MPC: those that, over the last
+        ``stall_periods`` periods flown, came less than ``stall_progress_nm`` closer to
+        their destination (holding, circling, flown away by the policy), from then on until
+        they arrive."""
+        if self.stall_progress_nm is None:
+            return []
+        distances = [math.hypot(row[_DEST_X] - row[_X], row[_DEST_Y] - row[_Y]) for row in rows]
+        history = self._distance_history
+        if history and abs(time_s - history[-1][0] - self.period_s) > 1e-6:
+            history.clear()  # not one period since the last decision: start the window again
+        history.append((time_s, distances))
+        if len(history) > self.stall_periods:
+            then = history.pop(0)[1]
+            for i, (now, before) in enumerate(zip(distances, then)):
+                if flying[i] and not self._homebound[i] and now > before - self.stall_progress_nm:
+                    self._homebound[i] = True
+                    self._counts["shield_stalled_aircraft"] += 1
+        return [i for i, bound in enumerate(self._homebound) if bound and flying[i]]
 
     def _inside(self, waypoints: np.ndarray) -> np.ndarray:
         """Waypoints pulled toward the centre where they lie outside the workspace."""
@@ -409,21 +498,25 @@ class SafetyFilter:
 
     def _remember(self, view: WorldView, positions: np.ndarray, alive: np.ndarray) -> None:
         """Keep where the applied waypoints are predicted to put the aircraft after one period."""
-        self._predicted_positions = positions.copy()
-        self._predicted_flying = alive.copy()
+        self._predicted_positions = positions.tolist()
+        self._predicted_flying = alive.tolist()
         self._predicted_time_s = view.time_s + self.period_s
 
-    def _update_wind_estimate(self, view: WorldView, flying: np.ndarray) -> None:
+    def _update_wind_estimate(self, view: WorldView, rows: list[list[float]], flying: list[bool]) -> None:
         """Correct the wind estimate by the drift from the last prediction (the MPC's
         "estimated" wind model)."""
         if self._predicted_positions is None or abs(view.time_s - self._predicted_time_s) > 1e-6:
             return
-        both = flying & self._predicted_flying
-        if both.any():
-            error_nm = view.state[both, S_X : S_Y + 1] - self._predicted_positions[both]
-            self._wind_estimate_kt = self._wind_estimate_kt + error_nm.mean(axis=0) / (
-                self.period_s / SECONDS_PER_HOUR
-            )
+        drift_x = drift_y = 0.0
+        count = 0
+        for row, now, predicted, then in zip(rows, flying, self._predicted_positions, self._predicted_flying):
+            if now and then:
+                drift_x += row[_X] - predicted[0]
+                drift_y += row[_Y] - predicted[1]
+                count += 1
+        if count:
+            hours = self.period_s / SECONDS_PER_HOUR
+            self._wind_estimate_kt = self._wind_estimate_kt + np.array([drift_x, drift_y]) / count / hours
             self._wind_1 = self._wind_estimate_kt[None].copy()
         self._predicted_positions = None
 
