@@ -10,7 +10,8 @@ and the markdown table (``--table``); ``agents/results/`` holds those of ``agent
 
 ``--shield`` adds, for every model, a study of the model inside the safety filter
 (``atc_nf_env.shield.SafetyFilter``, ``atc-nf evaluate --shield``), labelled ``MODEL+shield``,
-with the filter's interventions (decisions changed, aircraft changed, MPC fallbacks) in
+with the filter's interventions (decisions changed, aircraft changed, MPC fallbacks,
+aircraft handed to the MPC by the stall rule) in
 the table; the decision latency's mean and p99 are printed for every policy.
 
 ``--reuse-mpc DIR`` copies the MPC runs of the same seeds from an earlier study of the
@@ -107,7 +108,7 @@ def _interventions(shield: dict[str, Any] | None) -> str:
     if not shield:
         return ""
     return (f"{shield['filtered']} of {shield['decisions']} ({100 * shield['filtered_fraction']:.1f} %) / "
-            f"{shield['aircraft_changed']} / {shield['mpc_fallbacks']}")
+            f"{shield['aircraft_changed']} / {shield['mpc_fallbacks']} / {shield['stalled_aircraft']}")
 
 
 def table(results: dict[str, Any]) -> str:
@@ -118,7 +119,7 @@ def table(results: dict[str, Any]) -> str:
         "| scenario | policy | runs | success [95 % CI] | runs with LoS (LoS) | min separation (nm) | "
         "runs outside envelope | runs at airspeed cap | worst excursion (kt) | envelope held (% of steps) | "
         "mean flight time (min) | decision latency | MPC latency / agent's | decision p99 | "
-        "shield: decisions changed / aircraft changed / MPC fallbacks |",
+        "shield: decisions changed / aircraft changed / MPC fallbacks / stalled aircraft handed to the MPC |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for scenario, by_policy in results.items():

@@ -534,7 +534,8 @@ def summarize_interventions(infos: list[dict[str, Any]]) -> dict[str, Any] | Non
     shielded = [info for info in infos if "shield_decisions" in info]
     if not shielded:
         return None
-    totals = {key.removeprefix("shield_"): int(sum(info[key] for info in shielded)) for key in SHIELD_INFO_KEYS}
+    # .get: runs recorded before a count existed lack its key.
+    totals = {key.removeprefix("shield_"): int(sum(info.get(key, 0) for info in shielded)) for key in SHIELD_INFO_KEYS}
     decisions = totals["decisions"]
     return {
         **totals,
