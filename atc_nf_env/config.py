@@ -52,8 +52,12 @@ class SimConfig:
             paper's rule at q_i = q_d, extended to where the gradient has no direction).
         dphi_dt_gain: weight of ∂Φ_i/∂t in (5a) (1: the paper's law).
         substep_s: longest sub-step, s, of an integration step in which a command
-            saturates at ``airspeed_cap_kt`` (the law's singularity, see the kernel):
-            such a step is flown in ceil(dt_s / substep_s) sub-steps.
+            saturates at ``airspeed_cap_kt`` or the 1/P_i term of (5a) exceeds
+            ``substep_from_kt`` (the law's singularity, kernel guard 8): such a step is
+            flown in ceil(dt_s / substep_s) sub-steps.
+        substep_from_kt: the 1/P_i term of (5a), kt, above which a step is flown in
+            sub-steps (guard 8), so that the right-hand rule's ramp (from
+            ``right_turn_from_kt``) is entered at the sub-step's resolution whatever dt is.
         right_turn_deg: the right-hand rule at the law's singularity (kernel guard 9):
             where the 1/P_i term of (5a) exceeds ``right_turn_from_kt`` the desired
             heading θ_nh is turned to the right, by this angle, deg, once the term reaches
@@ -83,6 +87,7 @@ class SimConfig:
     grad_floor: float = 1e-12
     dphi_dt_gain: float = 1.0
     substep_s: float = 0.1
+    substep_from_kt: float = 10.0
     right_turn_deg: float = 90.0
     right_turn_from_kt: float = 100.0
     right_turn_full_kt: float = 400.0
@@ -95,7 +100,7 @@ class SimConfig:
         positive = (
             "k", "eps_nh", "length_scale_nm", "k_theta", "sensing_radius_nm", "barrier_nm", "f_cutoff",
             "arrival_tolerance_nm", "dt_s", "aircraft_radius_nm", "airspeed_cap_kt",
-            "p_floor", "grad_floor", "separation_min_nm", "substep_s",
+            "p_floor", "grad_floor", "separation_min_nm", "substep_s", "substep_from_kt",
         )
         for name in positive:
             if getattr(self, name) <= 0:
@@ -177,6 +182,7 @@ class SimConfig:
         params[nf.P_GRAD_FLOOR] = self.grad_floor
         params[nf.P_DPHI_DT_GAIN] = self.dphi_dt_gain
         params[nf.P_SUBSTEP] = self.substep_s
+        params[nf.P_SUBSTEP_FROM] = self.substep_from_kt
         params[nf.P_RIGHT_TURN] = math.radians(self.right_turn_deg)
         params[nf.P_RIGHT_TURN_FROM] = self.right_turn_from_kt
         params[nf.P_RIGHT_TURN_FULL] = self.right_turn_full_kt

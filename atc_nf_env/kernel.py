@@ -47,8 +47,10 @@ leaves undefined; none acts in an ordinary flight):
    1/P_i term saturates and its sign follows the sign of P_i: u_i = −u_cap sgn(P_i).
    A step of dt overshoots P_i = 0 by up to u_cap · dt (2 nm at 5 s) and the sign then
    alternates step by step, so the flight depended on dt. A step in which any command
-   saturates, or in which the right-hand rule acts (guard 9), is therefore flown in
-   ceil(dt / ``substep_s``) explicit-Euler sub-steps, each with fresh commands; the
+   saturates, in which the right-hand rule acts (guard 9), or in which any aircraft's
+   1/P_i term, (∂Φ_i/∂t)⁺ / |P_i|, exceeds ``substep_from_kt`` (10 kt: the watch) is
+   therefore flown in ceil(dt / ``substep_s``) explicit-Euler sub-steps, each with
+   fresh commands; the
    overshoot falls to u_cap · substep_s (0.04 nm at 0.1 s) whatever dt is. The outer
    grid is kept: traces, records and violation counts stay per integration step
    (min/max airspeed, separation and arrival are checked on every sub-step), and
@@ -84,20 +86,28 @@ leaves undefined; none acts in an ordinary flight):
    trajectories with the rule on and off).
    Measured (``bench/integration_step_study.py``, NF alone, converging-3 ... 8 without
    wind, default physics, dt = 5 ... 0.625 s): the largest move of the minimum
-   separation on halving dt fell from 2.1 nm to 0.3 nm, with no loss of separation.
+   separation on halving dt fell from 2.1 nm to 0.3 nm with the rule, and to 0.18 nm
+   with the rule and guard 8's watch, with no loss of separation.
    Why it acts from 100 kt and turns θ_nh by up to 90°: acting only beyond the
    envelope (from 540 kt) leaves about half a second before the blow-up, and the
    moves stayed at 1.6-1.7 nm; a standard-rate turn (3°/s added to ω_i, from 540 kt)
    is overridden by the ±π swings of θ_nh, and rounding still decided (1.2 nm);
    from 100 kt, a rate of 3-30°/s, or a turn toward 90° right of the bearing to the
    waypoint instead of θ_nh, lost separation in some encounters.
-   What is left: at dt ≤ 1.25 s every aircraft of converging-3 ... 8 leaves its line
-   to the right; at 2.5 and 5 s the 1/P_i term can cross the rule's whole ramp within
-   one step, and in some encounters the first break is still to the left. The rule
-   keeps the encounter's rotation symmetry, and the pinwheel it flies splits by
-   rounding (4 aircraft: two turn away first, relieving the other two), which also
-   decides on which side of the centre they pass. The goal of < 0.2 nm is not met
-   for every N (table in BENCHMARKS.md).
+   The watch of guard 8: the term grows like 1/(t₀ − t) as P_i → 0, so at 2.5 and 5 s
+   it could cross the rule's whole ramp (100 to 400 kt) within one full step, and in
+   some encounters the first break was still to the left; flying every step whose term
+   exceeds 10 kt in sub-steps enters the ramp at 0.1-s resolution whatever dt is. The
+   watch acts in ordinary flights too (a neighbour closing in gives a term of tens of
+   kt), where it only makes those steps finer: the MPC's episodes take as long within
+   the noise of a shared machine. 10 kt was chosen by measurement over 5-50 kt: it
+   gave the smallest moves and the narrowest spread.
+   What is left: the rule keeps the encounter's rotation symmetry, and the pinwheel it
+   flies around the centre is unstable and splits by rounding (4 aircraft: two turn
+   away first, relieving the other two): starts perturbed by 1e-12 nm move the minimum
+   separation by up to 0.3 nm at a fixed step. The exact encounter is one draw from
+   that spread; halving dt moves it by < 0.2 nm on converging-3 ... 8, and moves the
+   mean of an ensemble of perturbed starts by less (tables in BENCHMARKS.md).
 
 An aircraft that arrives (its path passes within Δ of its destination, checked on
 every integration step's segment) or leaves is frozen and stops being an obstacle.
@@ -277,8 +287,8 @@ def _commands(
 ) -> tuple[bool, bool, bool]:
     """The law's commands (5a)-(5b) of every flying aircraft from the current positions,
     into ``command``. Returns (any aircraft flying, the step is to be refined: a command
-    saturated at the cap (guard 2) or under the right-hand rule (guard 9), any command
-    outside the envelope)."""
+    saturated at the cap (guard 2), under the right-hand rule (guard 9) or with a 1/P_i
+    term above ``substep_from_kt`` (guard 8), any command outside the envelope)."""
     n = state.shape[0]
     inv_len = 1.0 / params[P_LENGTH]
     k_u = params[P_K_U]
@@ -288,6 +298,7 @@ def _commands(
     p_floor = params[P_P_FLOOR]
     grad_floor = params[P_GRAD_FLOOR]
     dphi_dt_gain = params[nf.P_DPHI_DT_GAIN]
+    substep_from = params[nf.P_SUBSTEP_FROM]
     u_min = params[P_U_MIN]
     u_max = params[P_U_MAX]
     any_flying = False
@@ -353,6 +364,9 @@ def _commands(
         command[i, C_DPHI_DT] = dphi_dt
         command[i, C_RIGHT_TURN] = _right_turn_weight(dphi_dt, command[i, C_P], params)
         any_turning |= command[i, C_RIGHT_TURN] > 0.0
+        # Guard 8's watch: a 1/P_i term this large can cross the rule's whole ramp, or
+        # P_i = 0, within one full step.
+        refine |= dphi_dt > substep_from * abs(command[i, C_P])
     if any_turning:
         # A neighbour under the rule flies forward at F_j, not at −sgn(P_j) F_j, whose
         # sign flips at random where P_j ≈ 0: ∂Φ_i/∂t is taken again with that airspeed.

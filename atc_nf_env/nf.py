@@ -72,7 +72,8 @@ P_SUBSTEP = 22  # longest sub-step of an integration step refined at the singula
 P_RIGHT_TURN = 23  # right-hand rule at the singularity: largest rotation of θ_nh, rad (0: off)
 P_RIGHT_TURN_FROM = 24  # 1/P_i term of (5a), kt, where the right-hand rule starts to act
 P_RIGHT_TURN_FULL = 25  # 1/P_i term of (5a), kt, from which it acts in full
-N_PARAMS = 26
+P_SUBSTEP_FROM = 26  # 1/P_i term of (5a), kt, above which a step is flown in sub-steps
+N_PARAMS = 27
 
 # Status of an aircraft (stored as float in the state array).
 FLYING = 0.0

@@ -77,14 +77,15 @@ def test_mpc_flies_the_four_aircraft_encounter_under_wind_safely(seed):
 
 
 def test_first_decision_holds_a_wider_margin_before_any_wind_is_seen():
-    # random-4 seed 610 (wind 28 kt): with the later decisions' 4-kt margin at the first
-    # decision too, one step of the first period flew 363.8 kt.
-    scenario = make_scenario("random-4", seed=610)
-    narrow = run_episode(MCMCMPC(first_decision_margin_kt=4.0), scenario, seed=610)
+    # random-6 seed 342: with the later decisions' 4-kt margin at the first decision too,
+    # a step of the first period flies 365.5 kt (on the kernel before guard 8's watch it
+    # was random-4 seed 610, 363.8 kt).
+    scenario = make_scenario("random-6", seed=342)
+    narrow = run_episode(MCMCMPC(first_decision_margin_kt=4.0), scenario, seed=342)
     assert narrow.metrics.envelope_violation_fraction > 0.0
     assert narrow.metrics.airspeed_min_kt < 366.0
     default = MCMCMPC()
-    result = run_episode(default, scenario, seed=610)
+    result = run_episode(default, scenario, seed=342)
     assert default.first_decision_margin_kt == 10.0 and default.envelope_margin_kt == 4.0
     assert result.metrics.envelope_violation_fraction == 0.0 and all(result.metrics.arrived)
 
