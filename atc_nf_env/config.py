@@ -57,7 +57,8 @@ class SimConfig:
             flown in ceil(dt_s / substep_s) sub-steps.
         substep_from_kt: the 1/P_i term of (5a), kt, above which a step is flown in
             sub-steps (guard 8), so that the right-hand rule's ramp (from
-            ``right_turn_from_kt``) is entered at the sub-step's resolution whatever dt is.
+            ``right_turn_from_kt``) is entered at the sub-step's resolution whatever dt is;
+            half of ``right_turn_from_kt`` by default.
         right_turn_deg: the right-hand rule at the law's singularity (kernel guard 9):
             where the 1/P_i term of (5a) exceeds ``right_turn_from_kt`` the desired
             heading θ_nh is turned to the right, by this angle, deg, once the term reaches
@@ -87,7 +88,7 @@ class SimConfig:
     grad_floor: float = 1e-12
     dphi_dt_gain: float = 1.0
     substep_s: float = 0.1
-    substep_from_kt: float = 10.0
+    substep_from_kt: float = 50.0
     right_turn_deg: float = 90.0
     right_turn_from_kt: float = 100.0
     right_turn_full_kt: float = 400.0

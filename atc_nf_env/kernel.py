@@ -48,7 +48,7 @@ leaves undefined; none acts in an ordinary flight):
    A step of dt overshoots P_i = 0 by up to u_cap · dt (2 nm at 5 s) and the sign then
    alternates step by step, so the flight depended on dt. A step in which any command
    saturates, in which the right-hand rule acts (guard 9), or in which any aircraft's
-   1/P_i term, (∂Φ_i/∂t)⁺ / |P_i|, exceeds ``substep_from_kt`` (10 kt: the watch) is
+   1/P_i term, (∂Φ_i/∂t)⁺ / |P_i|, exceeds ``substep_from_kt`` (50 kt: the watch) is
    therefore flown in ceil(dt / ``substep_s``) explicit-Euler sub-steps, each with
    fresh commands; the
    overshoot falls to u_cap · substep_s (0.04 nm at 0.1 s) whatever dt is. The outer
@@ -86,7 +86,7 @@ leaves undefined; none acts in an ordinary flight):
    trajectories with the rule on and off).
    Measured (``bench/integration_step_study.py``, NF alone, converging-3 ... 8 without
    wind, default physics, dt = 5 ... 0.625 s): the largest move of the minimum
-   separation on halving dt fell from 2.1 nm to 0.3 nm with the rule, and to 0.18 nm
+   separation on halving dt fell from 2.1 nm to 0.3 nm with the rule, and to 0.21 nm
    with the rule and guard 8's watch, with no loss of separation.
    Why it acts from 100 kt and turns θ_nh by up to 90°: acting only beyond the
    envelope (from 540 kt) leaves about half a second before the blow-up, and the
@@ -97,17 +97,22 @@ leaves undefined; none acts in an ordinary flight):
    The watch of guard 8: the term grows like 1/(t₀ − t) as P_i → 0, so at 2.5 and 5 s
    it could cross the rule's whole ramp (100 to 400 kt) within one full step, and in
    some encounters the first break was still to the left; flying every step whose term
-   exceeds 10 kt in sub-steps enters the ramp at 0.1-s resolution whatever dt is. The
-   watch acts in ordinary flights too (a neighbour closing in gives a term of tens of
-   kt), where it only makes those steps finer: the MPC's episodes take as long within
-   the noise of a shared machine. 10 kt was chosen by measurement over 5-50 kt: it
-   gave the smallest moves and the narrowest spread.
+   exceeds 50 kt in sub-steps enters the ramp at 0.1-s resolution whatever dt is (the
+   term doubles from 50 to 100 kt in the time it then takes to blow up). The watch also
+   acts in ordinary flights, where a neighbour closing in gives a term of tens of kt,
+   and makes those steps finer and dearer (``bench/substep_watch_study.py``, 8 seeds of
+   converging-6 and random-6 side by side): a watch from 10 kt made the MPC's decisions
+   1.3x and the safety filter's 1.9-2.5x as long as without a watch, from 25 kt up to
+   1.14x and 1.22x, from 50 kt up to 1.08x and 1.09x. Its effect at the saddle was the
+   same from 10 to 50 kt (the mean over perturbed starts moves by 0.13 nm on halving
+   dt, 0.43 nm without a watch), so it watches from half the rule's onset.
    What is left: the rule keeps the encounter's rotation symmetry, and the pinwheel it
    flies around the centre is unstable and splits by rounding (4 aircraft: two turn
    away first, relieving the other two): starts perturbed by 1e-12 nm move the minimum
    separation by up to 0.3 nm at a fixed step. The exact encounter is one draw from
-   that spread; halving dt moves it by < 0.2 nm on converging-3 ... 8, and moves the
-   mean of an ensemble of perturbed starts by less (tables in BENCHMARKS.md).
+   that spread; halving dt moves it by up to 0.21 nm on converging-3 ... 8 (< 0.2 nm
+   but for converging-7), and the mean of an ensemble of perturbed starts by 0.13 nm
+   (tables in BENCHMARKS.md).
 
 An aircraft that arrives (its path passes within Δ of its destination, checked on
 every integration step's segment) or leaves is frozen and stops being an obstacle.
