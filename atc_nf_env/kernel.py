@@ -23,7 +23,8 @@ and θ_nh the angle of sgn(p_i) ∇_iΦ_i. The wind w enters the ground velocity
 constrains airspeed, and the NF never sees the wind.
 
 Guards against the law's singularities (each keeps a value finite that the law
-leaves undefined; none acts in an ordinary flight):
+leaves undefined; none acts in an ordinary flight but guard 8's watch, which only flies
+some of its steps finer):
 
 1. |P_i| is floored at ``p_floor`` in the 1/P_i term: P_i = 0 when the heading is
    normal to the gradient, e.g. just after a waypoint switch.
@@ -98,7 +99,7 @@ leaves undefined; none acts in an ordinary flight):
    it could cross the rule's whole ramp (100 to 400 kt) within one full step, and in
    some encounters the first break was still to the left; flying every step whose term
    exceeds 50 kt in sub-steps enters the ramp at 0.1-s resolution whatever dt is (the
-   term doubles from 50 to 100 kt in the time it then takes to blow up). The watch also
+   term takes as long to double from 50 to 100 kt as it then takes to blow up). The watch also
    acts in ordinary flights, where a neighbour closing in gives a term of tens of kt,
    and makes those steps finer and dearer (``bench/substep_watch_study.py``, 8 seeds of
    converging-6 and random-6 side by side): a watch from 10 kt made the MPC's decisions
