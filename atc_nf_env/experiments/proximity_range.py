@@ -178,6 +178,10 @@ def conclusions(rows: list[dict[str, Any]]) -> list[str]:
         return [f"Default: {default.sensing_radius_nm:g} / {default.barrier_nm:g} nm."]
     closest = min(rows, key=lambda r: abs(r["nf4"]["min_separation_nm"] - 22.0))
     largest = max(rows, key=lambda r: r["nf6"]["roundabout_radius_nm"])
+    radii = [r["nf6"]["roundabout_radius_nm"] for r in sorted(rows, key=lambda r: r["sensing_nm"])]
+    trend = ("grows with the range but stays" if all(a <= b for a, b in zip(radii, radii[1:]))
+             else "does not grow steadily with the range, and stays")
+    spacing = [r["nf6"]["min_separation_nm"] / r["barrier_nm"] for r in rows]
     lines = [
         f"**Default: {default.sensing_radius_nm:g} / {default.barrier_nm:g} nm, kept.** The MPC is the "
         "reference policy and the project's main job, and at this range it keeps the paper's picture",
@@ -211,13 +215,13 @@ def conclusions(rows: list[dict[str, Any]]) -> list[str]:
         "No single range reproduces both the NF-alone and the MPC separations of the paper.",
         "",
         "**The roundabout.** No range reproduces the paper's roundabout of about 190 nm: the radius "
-        "grows with the range but stays well under it, "
-        f"{largest['nf6']['roundabout_radius_nm']:.0f} nm at {largest['sensing_nm']:g} / "
-        f"{largest['barrier_nm']:g} nm, where every aircraft already senses every other across most "
+        f"{trend} well under it, at most "
+        f"{largest['nf6']['roundabout_radius_nm']:.0f} nm (at {largest['sensing_nm']:g} / "
+        f"{largest['barrier_nm']:g} nm), even where every aircraft senses every other across most "
         "of the encounter. Our G_i is a product of per-neighbour barriers with a cut-off (the "
         "decentralized form of the paper's reference [13], whose cut-off and scale the paper does "
         "not give), and it repels only near the barrier distance; the aircraft turn where that "
-        "repulsion balances the pull of the destination, about one to one and a half barrier "
+        f"repulsion balances the pull of the destination, {min(spacing):.1f} to {max(spacing):.1f} barrier "
         "distances from each other (the 6-aircraft separations above). "
         "A 190 nm roundabout of 6 aircraft keeps neighbours about 190 nm apart (the side of the "
         "hexagon), which needs a repulsion felt across the whole 500-nm encounter: a different, "
