@@ -28,7 +28,14 @@ import warnings
 
 import numpy as np
 from _report import machine, write_section  # bench/ is on sys.path when run as a script
-from integration_step_study import SADDLE_AIRCRAFT, ensemble_study, saddle_separations
+from integration_step_study import (
+    ENSEMBLE_SIZE,
+    PERTURBATION_NM,
+    SADDLE_AIRCRAFT,
+    SMALL_STEPS,
+    ensemble_study,
+    saddle_separations,
+)
 
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import run_episode
@@ -38,8 +45,8 @@ from atc_nf_env.shield import SafetyFilter
 from baselines import MCMCMPC
 
 #: Thresholds studied, kt; the last, beyond any term, is the kernel without a watch.
-THRESHOLDS_KT = (10.0, 25.0, 50.0, 100.0, 1e9)
 NO_WATCH_KT = 1e9
+THRESHOLDS_KT = (10.0, 25.0, 50.0, 100.0, NO_WATCH_KT)
 AGENT = "agents/models/finetuned_ppo.zip"
 COST_CASES = (("mpc", "converging-6"), ("mpc", "random-6"), ("shield", "converging-6"), ("shield", "random-6"))
 
@@ -50,7 +57,7 @@ def saddle_moves(threshold: float) -> tuple[float, float]:
     overrides = {"substep_from_kt": threshold}
     exact = 0.0
     for n in SADDLE_AIRCRAFT:
-        seps = [sep for sep, _, _ in saddle_separations("default", overrides, n, (5.0, 2.5, 1.25, 0.625))]
+        seps = [sep for sep, _, _ in saddle_separations("default", overrides, n, SMALL_STEPS)]
         exact = max(exact, float(np.abs(np.diff(seps)).max()))
     _, ensemble, _ = ensemble_study("default", overrides)
     return exact, ensemble
@@ -98,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"`python bench/substep_watch_study.py --seeds {args.seeds}` — {machine()}. Saddle: the NF alone, "
         "converging-3 ... 8 without wind, largest move of the minimum separation on halving a step of 5 s or "
-        "less, for the exact encounter and for the mean of 16 starts perturbed by 1e-9 nm. Cost: mean decision "
+        f"less, for the exact encounter and for the mean of {ENSEMBLE_SIZE} starts perturbed by {PERTURBATION_NM:g} nm. "
+        "Cost: mean decision "
         f"time over seeds 0..{args.seeds - 1} (σ = 5.17 m/s), flown side by side, over the kernel without a watch "
         "(sub-steps only where a command saturates or the right-hand rule acts).",
         "",
