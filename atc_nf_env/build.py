@@ -28,6 +28,7 @@ PACKAGE_SOURCES: tuple[str, ...] = (
     "policy.py",
     "evaluate.py",
     "shield.py",
+    "shield_prediction.py",
 )
 
 

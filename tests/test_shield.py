@@ -111,7 +111,7 @@ def test_same_seed_same_filtered_episode():
 class NoAlternatives(SafetyFilter):
     """A filter whose every alternative is the unsafe proposal, so that the MPC decides."""
 
-    def _alternatives(self, view, planned, blamed, joint):
+    def _alternatives(self, view, planned, blamed, kind):
         return planned[None].copy(), np.zeros((1, planned.shape[0]), dtype=bool)
 
 
@@ -258,8 +258,8 @@ def test_the_alternative_applied_is_the_closest_safe_one_of_the_whole_set():
     proposal = shielded.policy.proposals[-1]
     assert shielded.episode_info()["shield_filtered"] == 1
     blamed = shielded._check(view.state, proposal)[2]
-    for joint in (False, True):
-        candidates, changed = shielded._alternatives(view, proposal, blamed, joint)
+    for kind in ("single", "joint"):
+        candidates, changed = shielded._alternatives(view, proposal, blamed, kind)
         safe = shielded._predict(view.state, candidates)[0] == shielded._full_steps()
         if safe.any():
             break
@@ -295,3 +295,79 @@ def test_the_stall_rule_hands_a_holding_aircraft_to_the_mpc():
         SafetyFilter(AimThrough(), stall_periods=0)
     with pytest.raises(ValueError, match="stall_progress_nm"):
         SafetyFilter(AimThrough(), stall_progress_nm=float("inf"))
+
+
+class SampledOnly(SafetyFilter):
+    """A filter whose structured tiers offer only the unsafe proposal: the sampled tier
+    (or, failing it, the MPC) must settle every intervention."""
+
+    def _alternatives(self, view, planned, blamed, kind):
+        if kind == "sampled":
+            return super()._alternatives(view, planned, blamed, kind)
+        return planned[None].copy(), np.zeros((1, planned.shape[0]), dtype=bool)
+
+
+def test_the_sampled_tier_settles_what_the_structured_ones_cannot_and_is_seeded():
+    scenario = make_scenario("converging-4")
+    runs, infos = [], []
+    for _ in range(2):
+        shielded = SampledOnly(Behind(), mpc_settings={"extractions": 64})
+        runs.append(run_episode(shielded, scenario, seed=5, max_time_s=1800))
+        infos.append(shielded.episode_info())
+    info = infos[0]
+    assert info["shield_filtered"] == 6  # Behind is unsafe at every decision
+    assert info["shield_sampled_changes"] + info["shield_mpc_fallbacks"] == 6
+    assert info["shield_sampled_changes"] >= 1
+    assert runs[0].metrics.worst_excursion_kt == 0.0 and runs[0].metrics.los_count == 0
+    assert infos[0] == infos[1] and np.array_equal(runs[0].waypoints, runs[1].waypoints)
+    # Another seed draws other sampled sets.
+    other = SampledOnly(Behind(), mpc_settings={"extractions": 64})
+    assert not np.array_equal(run_episode(other, scenario, seed=6, max_time_s=1800).waypoints, runs[0].waypoints)
+
+
+def test_the_compiled_prediction_is_the_kernels_flight_bit_for_bit():
+    """``PlanPredictor`` flies the kernel's own compiled world: its verdict, survived steps,
+    blame and positions equal two ``kernel.advance`` calls with the homing waypoints."""
+    from atc_nf_env import kernel
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.shield_prediction import NONE_SAFE, PlanPredictor, homing_waypoints
+    from atc_nf_env.simulation import initial_state
+
+    rng = np.random.default_rng(0)
+    for name, seed in (("random-5", 2), ("converging-4", 0), ("random-8", 7)):
+        scenario = make_scenario(name, seed=seed)
+        config = SimConfig()
+        params = config.to_params(scenario.workspace_radius_nm, stop_on_violation=True)
+        limit = 0.99 * (scenario.workspace_radius_nm - config.aircraft_radius_nm)
+        predictor = PlanPredictor(params, 60, 2, 130.0, np.pi / 3, limit)
+        state = initial_state(scenario, 1)[0]
+        n = state.shape[0]
+        to_dest = state[:, kernel.S_DEST_X : kernel.S_DEST_Y + 1] - state[:, :2]
+        bearing = np.arctan2(to_dest[:, 1], to_dest[:, 0])
+        angles = bearing[None] + rng.uniform(-1.2, 1.2, (12, n))
+        distances = rng.uniform(60.0, 160.0, (12, n))
+        candidates = np.ascontiguousarray(state[None, :, :2] + distances[..., None]
+                                          * np.stack([np.cos(angles), np.sin(angles)], axis=-1))
+        wind = rng.normal(0.0, 10.0, 2)
+        first = predictor.first_safe(state, candidates, wind)
+        for m, candidate in enumerate(candidates):
+            world = state[None].copy()
+            trace = kernel.advance(world, candidate[None], wind[None], 300.0, params, scratch=kernel.KernelScratch())
+            survived = int(trace.steps_done[0]) - 1 if trace.violated[0] else None
+            blamed = (trace.violation_steps[0] > 0) | trace.los_pairs[0].any(axis=1)
+            after_first = world[0, :, :2].copy()
+            if survived is None and (world[0, :, kernel.S_STATUS] == kernel.FLYING).any():
+                home = np.empty((n, 2))
+                homing_waypoints(world[0], candidate, 130.0, np.pi / 3, limit, home)
+                trace = kernel.advance(world, home[None], wind[None], 300.0, params, scratch=kernel.KernelScratch())
+                if trace.violated[0]:
+                    survived = 60 + int(trace.steps_done[0]) - 1
+                    blamed = (trace.violation_steps[0] > 0) | trace.los_pairs[0].any(axis=1)
+            if survived is None:
+                assert first == m and predictor.survived[m] == 120
+                assert np.array_equal(predictor.positions, after_first)
+                break
+            assert predictor.survived[m] == survived and np.array_equal(predictor.blamed[m], blamed)
+        else:
+            assert first == NONE_SAFE
+        assert (predictor.survived[first + 1 if first >= 0 else len(candidates):len(candidates)] == -1).all()
