@@ -73,7 +73,7 @@ from atc_nf_env.config import SimConfig
 from atc_nf_env.kernel import ABSENT, FLYING, S_DEST_X, S_DEST_Y, S_HEADING, S_STATUS, S_WP_X, S_WP_Y, S_X, S_Y
 from atc_nf_env.policy import Policy
 from atc_nf_env.scenarios import Scenario
-from atc_nf_env.shield_prediction import NONE_SAFE, PlanPredictor, homing_waypoints
+from atc_nf_env.shield_prediction import NONE_SAFE, PlanPredictor, homing_waypoints, structured_alternatives
 from atc_nf_env.simulation import WorldView
 from atc_nf_env.units import DECISION_PERIOD_S, SECONDS_PER_HOUR
 
@@ -101,6 +101,7 @@ TURNS_RAD = tuple(math.radians(a) for a in (10.0, -10.0, 20.0, -20.0, 40.0, -40.
 JOINT_TURNS_RAD = tuple(math.radians(a) for a in (20.0, -20.0, 40.0, -40.0))
 #: Waypoint distances tried in the proposal's direction and toward home, nm.
 DISTANCES_NM = (100.0, 130.0)
+_TURNS, _JOINT_TURNS, _DISTANCES = np.array(TURNS_RAD), np.array(JOINT_TURNS_RAD), np.array(DISTANCES_NM)
 #: The tiers of alternatives, tried in this order (see the module's docstring).
 ALTERNATIVE_KINDS = ("single", "joint", "sampled")
 #: Waypoint sets of the sampled tier (each flown only until the first safe one).
@@ -113,10 +114,6 @@ _SAMPLE_STREAM = 0x5348
 _ROW_FIELDS = [S_X, S_Y, S_HEADING, S_DEST_X, S_DEST_Y, S_STATUS]
 _X, _Y, _HEADING, _DEST_X, _DEST_Y, _STATUS = range(len(_ROW_FIELDS))
 
-
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """Angles wrapped to [−π, π), rad."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def _finite_number(name: str, value: Any, low: float, high: float) -> float:
@@ -415,14 +412,13 @@ class SafetyFilter:
         return survived, positions, alive
 
     def _homing(self, states: np.ndarray, distance_nm: float) -> np.ndarray:
-        """Waypoints (B, N, 2): each aircraft aimed at its destination ``distance_nm`` out,
-        turned at most ``recovery_angle_rad`` from its heading, inside the workspace."""
-        position = states[:, :, S_X : S_Y + 1]
-        to_dest = states[:, :, S_DEST_X : S_DEST_Y + 1] - position
-        bearing = np.arctan2(to_dest[..., 1], to_dest[..., 0])
-        heading = states[:, :, S_HEADING]
-        direction = heading + np.clip(_wrap(bearing - heading), -self.recovery_angle_rad, self.recovery_angle_rad)
-        return self._inside(position + distance_nm * np.stack([np.cos(direction), np.sin(direction)], axis=-1))
+        """Waypoints (B, N, 2): each flying aircraft aimed at its destination
+        ``distance_nm`` out, turned at most ``recovery_angle_rad`` from its heading, inside
+        the workspace (``homing_waypoints``); the others keep their current waypoint."""
+        home = states[:, :, S_WP_X : S_WP_Y + 1].copy()
+        for world, out in zip(states, home):
+            homing_waypoints(world, out.copy(), distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm, out)
+        return home
 
     def _homing_one(self, state: np.ndarray, keep: np.ndarray) -> np.ndarray:
         """``_homing`` of one world (N, N_STATE) as (N, 2), from the prediction's own
@@ -463,39 +459,18 @@ class SafetyFilter:
         """Candidate waypoint sets (M, N, 2) and which aircraft each changes (M, N), of one
         tier of ``ALTERNATIVE_KINDS``: the single-aircraft changes of the blamed aircraft,
         the all-aircraft ones, or the sampled ones."""
+        if kind == "sampled":
+            return self._sampled(view, planned)
         flying = view.flying
         suspects = np.flatnonzero(blamed & flying)
         if suspects.size == 0:
             suspects = np.flatnonzero(flying)
-        position = view.state[:, S_X : S_Y + 1]
-        offset = planned - position
-        distance = np.hypot(offset[:, 0], offset[:, 1])
-        direction = np.arctan2(offset[:, 1], offset[:, 0])
-        if kind == "sampled":
-            return self._sampled(view, planned)
         joint = kind == "joint"
-        state = view.state[None]
-        turns = np.array(JOINT_TURNS_RAD if joint else TURNS_RAD)
-        # Variants (V, N, 2), a waypoint per aircraft: the proposals turned, at other
-        # distances (not when joint), and homing.
-        angle = direction[None, :] + turns[:, None]
-        turned = position + distance[None, :, None] * np.stack([np.cos(angle), np.sin(angle)], axis=-1)
-        parts = [turned]
-        if not joint:
-            unit = np.stack([np.cos(direction), np.sin(direction)], axis=-1)
-            parts.append(position + np.array(DISTANCES_NM)[:, None, None] * unit)
-        parts += [self._homing(state, d) for d in DISTANCES_NM]
-        variants = self._inside(np.concatenate(parts))
-        if joint:
-            candidates = np.where(flying[None, :, None], variants, planned[None])
-            return candidates, np.repeat(flying[None], len(variants), axis=0)
-        n_variants, n = len(variants), flying.shape[0]
-        candidates = np.repeat(planned[None], suspects.size * n_variants, axis=0).reshape(suspects.size, n_variants, n, 2)
-        changed = np.zeros((suspects.size, n_variants, n), dtype=bool)
-        for k, i in enumerate(suspects):
-            candidates[k, :, i] = variants[:, i]
-            changed[k, :, i] = True
-        return candidates.reshape(-1, n, 2), changed.reshape(-1, n)
+        return structured_alternatives(
+            view.state, np.ascontiguousarray(planned, dtype=np.float64), suspects, joint,
+            _JOINT_TURNS if joint else _TURNS, _DISTANCES, _DISTANCES, self.recovery_angle_rad,
+            self._waypoint_limit_nm,
+        )
 
     def _sampled(self, view: WorldView, planned: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``SAMPLED_ALTERNATIVES`` waypoint sets (M, N, 2) from the MCMC-MPC's proposal

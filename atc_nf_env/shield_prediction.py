@@ -62,9 +62,90 @@ def homing_waypoints(
         direction = heading + min(max(error, -max_turn_rad), max_turn_rad)
         wx = x + distance_nm * math.cos(direction)
         wy = y + distance_nm * math.sin(direction)
-        scale = min(1.0, limit_nm / max(math.sqrt(wx * wx + wy * wy), 1e-12))
-        out[i, 0] = wx * scale
-        out[i, 1] = wy * scale
+        out[i, 0], out[i, 1] = _inside(wx, wy, limit_nm)
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _inside(x: float, y: float, limit_nm: float) -> tuple[float, float]:
+    """A waypoint pulled toward the centre to within ``limit_nm`` of it, nm."""
+    scale = min(1.0, limit_nm / max(math.sqrt(x * x + y * y), 1e-12))
+    return x * scale, y * scale
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def structured_alternatives(
+    state: np.ndarray,
+    planned: np.ndarray,
+    suspects: np.ndarray,
+    joint: bool,
+    turns_rad: np.ndarray,
+    distances_nm: np.ndarray,
+    home_distances_nm: np.ndarray,
+    max_turn_rad: float,
+    limit_nm: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The safety filter's structured alternatives to ``planned`` (N, 2) nm in world
+    ``state`` (N, N_STATE): candidate waypoint sets (M, N, 2) nm and which aircraft each
+    changes (M, N).
+
+    The variants of an aircraft's waypoint, in this order: its planned waypoint turned
+    about the aircraft by each of ``turns_rad``; (not ``joint``) moved to each of
+    ``distances_nm`` in the same direction; aimed home at each of ``home_distances_nm``
+    (``homing_waypoints``); each pulled inside ``limit_nm``. Not ``joint``: for each
+    aircraft of ``suspects`` in turn, every variant of its waypoint with every other
+    aircraft keeping ``planned`` (M = suspects × variants). ``joint``: every flying
+    aircraft takes the same variant at once (M = variants)."""
+    n = state.shape[0]
+    n_dist = 0 if joint else distances_nm.shape[0]
+    n_variants = turns_rad.shape[0] + n_dist + home_distances_nm.shape[0]
+    variants = np.empty((n_variants, n, 2))
+    home = np.empty((n, 2))
+    for h in range(home_distances_nm.shape[0]):
+        homing_waypoints(state, planned, home_distances_nm[h], max_turn_rad, limit_nm, home)
+        v = turns_rad.shape[0] + n_dist + h
+        for i in range(n):
+            variants[v, i, 0] = home[i, 0]
+            variants[v, i, 1] = home[i, 1]
+    for i in range(n):
+        x = state[i, S_X]
+        y = state[i, S_Y]
+        ox = planned[i, 0] - x
+        oy = planned[i, 1] - y
+        distance = math.sqrt(ox * ox + oy * oy)
+        direction = math.atan2(oy, ox)
+        for t in range(turns_rad.shape[0]):
+            angle = direction + turns_rad[t]
+            variants[t, i, 0], variants[t, i, 1] = _inside(
+                x + distance * math.cos(angle), y + distance * math.sin(angle), limit_nm
+            )
+        for d in range(n_dist):
+            v = turns_rad.shape[0] + d
+            variants[v, i, 0], variants[v, i, 1] = _inside(
+                x + distances_nm[d] * math.cos(direction), y + distances_nm[d] * math.sin(direction), limit_nm
+            )
+    n_candidates = n_variants if joint else suspects.shape[0] * n_variants
+    candidates = np.empty((n_candidates, n, 2))
+    changed = np.zeros((n_candidates, n), dtype=np.bool_)
+    for m in range(n_candidates):
+        for i in range(n):
+            candidates[m, i, 0] = planned[i, 0]
+            candidates[m, i, 1] = planned[i, 1]
+    if joint:
+        for v in range(n_variants):
+            for i in range(n):
+                if state[i, S_STATUS] == FLYING:
+                    candidates[v, i, 0] = variants[v, i, 0]
+                    candidates[v, i, 1] = variants[v, i, 1]
+                    changed[v, i] = True
+    else:
+        for k in range(suspects.shape[0]):
+            i = suspects[k]
+            for v in range(n_variants):
+                m = k * n_variants + v
+                candidates[m, i, 0] = variants[v, i, 0]
+                candidates[m, i, 1] = variants[v, i, 1]
+                changed[m, i] = True
+    return candidates, changed
 
 
 @njit(cache=True, error_model="numpy")
@@ -235,4 +316,4 @@ class PlanPredictor:
         return index
 
 
-__all__ = ["NONE_SAFE", "PlanPredictor", "homing_waypoints"]
+__all__ = ["NONE_SAFE", "PlanPredictor", "homing_waypoints", "structured_alternatives"]
