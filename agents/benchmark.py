@@ -108,7 +108,8 @@ def _interventions(shield: dict[str, Any] | None) -> str:
     if not shield:
         return ""
     return (f"{shield['filtered']} of {shield['decisions']} ({100 * shield['filtered_fraction']:.1f} %) / "
-            f"{shield['aircraft_changed']} / {shield['mpc_fallbacks']} / {shield['stalled_aircraft']}")
+            f"{shield['aircraft_changed']} / {shield.get('sampled_changes', 0)} / {shield['mpc_fallbacks']} / "
+            f"{shield['stalled_aircraft']}")
 
 
 def table(results: dict[str, Any]) -> str:
@@ -119,7 +120,8 @@ def table(results: dict[str, Any]) -> str:
         "| scenario | policy | runs | success [95 % CI] | runs with LoS (LoS) | min separation (nm) | "
         "runs outside envelope | runs at airspeed cap | worst excursion (kt) | envelope held (% of steps) | "
         "mean flight time (min) | decision latency | MPC latency / agent's | decision p99 | "
-        "shield: decisions changed / aircraft changed / MPC fallbacks / stalled aircraft handed to the MPC |",
+        "shield: decisions changed / aircraft changed / settled by a sampled set / MPC fallbacks / "
+        "stalled aircraft handed to the MPC |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for scenario, by_policy in results.items():
