@@ -73,7 +73,7 @@ from atc_nf_env.config import SimConfig
 from atc_nf_env.kernel import ABSENT, FLYING, S_DEST_X, S_DEST_Y, S_HEADING, S_STATUS, S_WP_X, S_WP_Y, S_X, S_Y
 from atc_nf_env.policy import Policy
 from atc_nf_env.scenarios import Scenario
-from atc_nf_env.shield_prediction import NONE_SAFE, PlanPredictor, homing_waypoints, structured_alternatives
+from atc_nf_env.shield_prediction import NONE_SAFE, PlanPredictor, _homing_waypoints, _structured_alternatives
 from atc_nf_env.simulation import WorldView
 from atc_nf_env.units import DECISION_PERIOD_S, SECONDS_PER_HOUR
 
@@ -264,7 +264,7 @@ class SafetyFilter:
         if np.iscomplexobj(proposal):
             raise ValueError(f"{type(self.policy).__name__}.act returned complex waypoints; expected real (N, 2) nm")
         proposal = np.asarray(proposal, dtype=np.float64)
-        state = view.state
+        state = np.ascontiguousarray(view.state, dtype=np.float64)  # the compiled prediction reads it as is
         n = state.shape[0]
         if proposal.shape != (n, 2):
             raise ValueError(f"{type(self.policy).__name__}.act returned shape {proposal.shape}; expected ({n}, 2) nm")
@@ -414,17 +414,17 @@ class SafetyFilter:
     def _homing(self, states: np.ndarray, distance_nm: float) -> np.ndarray:
         """Waypoints (B, N, 2): each flying aircraft aimed at its destination
         ``distance_nm`` out, turned at most ``recovery_angle_rad`` from its heading, inside
-        the workspace (``homing_waypoints``); the others keep their current waypoint."""
+        the workspace (``_homing_waypoints``); the others keep their current waypoint."""
         home = states[:, :, S_WP_X : S_WP_Y + 1].copy()
         for world, out in zip(states, home):
-            homing_waypoints(world, out.copy(), distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm, out)
+            _homing_waypoints(world, out.copy(), distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm, out)
         return home
 
     def _homing_one(self, state: np.ndarray, keep: np.ndarray) -> np.ndarray:
         """``_homing`` of one world (N, N_STATE) as (N, 2), from the prediction's own
-        compiled ``homing_waypoints``; aircraft not flying keep ``keep``."""
+        compiled ``_homing_waypoints``; aircraft not flying keep ``keep``."""
         home = np.empty((state.shape[0], 2))
-        homing_waypoints(state, np.ascontiguousarray(keep, dtype=np.float64), self.home_distance_nm,
+        _homing_waypoints(state, np.ascontiguousarray(keep, dtype=np.float64), self.home_distance_nm,
                          self.recovery_angle_rad, self._waypoint_limit_nm, home)
         return home
 
@@ -466,7 +466,7 @@ class SafetyFilter:
         if suspects.size == 0:
             suspects = np.flatnonzero(flying)
         joint = kind == "joint"
-        return structured_alternatives(
+        return _structured_alternatives(
             view.state, np.ascontiguousarray(planned, dtype=np.float64), suspects, joint,
             _JOINT_TURNS if joint else _TURNS, _DISTANCES, _DISTANCES, self.recovery_angle_rad,
             self._waypoint_limit_nm,
@@ -477,7 +477,7 @@ class SafetyFilter:
         distribution (its ``MPCSettings``), every flying aircraft changed, and (M, N) which."""
         settings, rng, flying = self._proposal, self._rng, view.flying
         m, n = SAMPLED_ALTERNATIVES, flying.shape[0]
-        state = view.state
+        state = np.ascontiguousarray(view.state, dtype=np.float64)  # the compiled prediction reads it as is
         position = state[:, S_X : S_Y + 1]
         to_dest = state[:, S_DEST_X : S_DEST_Y + 1] - position
         bearing = np.arctan2(to_dest[:, 1], to_dest[:, 0])

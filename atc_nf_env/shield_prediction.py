@@ -42,7 +42,7 @@ _NON_FINITE = -2
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
-def homing_waypoints(
+def _homing_waypoints(
     world: np.ndarray, keep: np.ndarray, distance_nm: float, max_turn_rad: float, limit_nm: float, out: np.ndarray
 ) -> None:
     """Each flying aircraft of ``world`` (N, N_STATE) aimed at its destination
@@ -73,7 +73,7 @@ def _inside(x: float, y: float, limit_nm: float) -> tuple[float, float]:
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
-def structured_alternatives(
+def _structured_alternatives(
     state: np.ndarray,
     planned: np.ndarray,
     suspects: np.ndarray,
@@ -91,7 +91,7 @@ def structured_alternatives(
     The variants of an aircraft's waypoint, in this order: its planned waypoint turned
     about the aircraft by each of ``turns_rad``; (not ``joint``) moved to each of
     ``distances_nm`` in the same direction; aimed home at each of ``home_distances_nm``
-    (``homing_waypoints``); each pulled inside ``limit_nm``. Not ``joint``: for each
+    (``_homing_waypoints``); each pulled inside ``limit_nm``. Not ``joint``: for each
     aircraft of ``suspects`` in turn, every variant of its waypoint with every other
     aircraft keeping ``planned`` (M = suspects × variants). ``joint``: every flying
     aircraft takes the same variant at once (M = variants)."""
@@ -101,7 +101,7 @@ def structured_alternatives(
     variants = np.empty((n_variants, n, 2))
     home = np.empty((n, 2))
     for h in range(home_distances_nm.shape[0]):
-        homing_waypoints(state, planned, home_distances_nm[h], max_turn_rad, limit_nm, home)
+        _homing_waypoints(state, planned, home_distances_nm[h], max_turn_rad, limit_nm, home)
         v = turns_rad.shape[0] + n_dist + h
         for i in range(n):
             variants[v, i, 0] = home[i, 0]
@@ -198,7 +198,7 @@ def _first_safe(
                     any_alive |= world[i, S_STATUS] == FLYING
                 if not any_alive:
                     break
-                homing_waypoints(world, candidates[m], home_distance_nm, max_turn_rad, limit_nm, home)
+                _homing_waypoints(world, candidates[m], home_distance_nm, max_turn_rad, limit_nm, home)
                 waypoints = home
             _, done, violated = kernel._advance_world(
                 world, waypoints, wind[0], wind[1], period_steps, params, grad, command, min_airspeed,
@@ -227,10 +227,32 @@ def _first_safe(
     return NONE_SAFE
 
 
+def _check_inputs(state: np.ndarray, candidates: np.ndarray, wind_kt: np.ndarray) -> None:
+    """``PlanPredictor.first_safe``'s inputs: exact float64 C-contiguous arrays of matching
+    shapes, all finite (a few attribute look-ups on the common path)."""
+    for name, array, ndim in (("state", state, 2), ("candidates", candidates, 3), ("wind_kt", wind_kt, 1)):
+        if not (isinstance(array, np.ndarray) and array.dtype == np.float64 and array.ndim == ndim
+                and array.flags.c_contiguous):
+            raise ValueError(
+                f"{name} is {type(array).__name__} with shape {getattr(array, 'shape', None)} and dtype "
+                f"{getattr(array, 'dtype', None)}; expected a C-contiguous float64 array of {ndim} dimensions"
+            )
+    n = state.shape[0]
+    if state.shape[1] != N_STATE or n < 1:
+        raise ValueError(f"state has shape {state.shape}; expected (N, {N_STATE}) with N >= 1")
+    if candidates.shape[1:] != (n, 2) or candidates.shape[0] < 1:
+        raise ValueError(f"candidates has shape {candidates.shape}; expected (M, N, 2) = (M >= 1, {n}, 2) nm")
+    if wind_kt.shape != (2,):
+        raise ValueError(f"wind_kt has shape {wind_kt.shape}; expected (2,) kt")
+    for name, array in (("state", state), ("candidates", candidates), ("wind_kt", wind_kt)):
+        if not np.isfinite(array).all():
+            raise ValueError(f"{name} contains NaN or inf; all values must be finite")
+
+
 class PlanPredictor:
     """Predicts waypoint sets of one world over ``lookahead_periods`` periods: the first
     with the waypoints, a second (if 2) with every aircraft re-aimed home (see
-    ``homing_waypoints``), checking the envelope and separation of ``params`` at every
+    ``_homing_waypoints``), checking the envelope and separation of ``params`` at every
     integration step (``params`` built with ``stop_on_violation=True``).
 
     Args:
@@ -250,11 +272,17 @@ class PlanPredictor:
         max_turn_rad: float,
         limit_nm: float,
     ) -> None:
-        if params.shape != (kernel.nf.N_PARAMS,) or params.dtype != np.float64:
-            raise ValueError(f"params has shape {params.shape} and dtype {params.dtype}; expected "
-                             f"({kernel.nf.N_PARAMS},) float64 from SimConfig.to_params")
-        if lookahead_periods not in (1, 2):
+        kernel._check_params(params)
+        if not params[kernel.nf.P_STOP_ON_VIOLATION]:
+            raise ValueError("params must be built with stop_on_violation=True: a prediction stops at its first breach")
+        if isinstance(lookahead_periods, bool) or lookahead_periods not in (1, 2):
             raise ValueError(f"lookahead_periods = {lookahead_periods!r}: allowed: 1, 2")
+        if isinstance(period_steps, bool) or not isinstance(period_steps, (int, np.integer)) or period_steps < 1:
+            raise ValueError(f"period_steps = {period_steps!r}: must be an integer >= 1")
+        for name, value in (("home_distance_nm", home_distance_nm), ("max_turn_rad", max_turn_rad),
+                            ("limit_nm", limit_nm)):
+            if not (isinstance(value, (int, float, np.floating)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} = {value!r}: must be a finite number > 0")
         self.params = params
         self.period_steps = int(period_steps)
         self.lookahead_periods = int(lookahead_periods)
@@ -295,8 +323,11 @@ class PlanPredictor:
             and ``alive`` (N,) are the safe candidate's after the first period.
 
         Raises:
+            ValueError: on a wrong shape, dtype or layout, or a NaN or inf in any input (the
+                compiled flight reads its inputs unchecked).
             FloatingPointError: if a flight produced a NaN or inf state.
         """
+        _check_inputs(state, candidates, wind_kt)
         n_candidates, n_aircraft = candidates.shape[0], state.shape[0]
         self._buffers(n_aircraft, n_candidates)
         self.survived[:n_candidates] = -1
@@ -316,4 +347,4 @@ class PlanPredictor:
         return index
 
 
-__all__ = ["NONE_SAFE", "PlanPredictor", "homing_waypoints", "structured_alternatives"]
+__all__ = ["NONE_SAFE", "PlanPredictor"]

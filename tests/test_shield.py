@@ -330,7 +330,7 @@ def test_the_compiled_prediction_is_the_kernels_flight_bit_for_bit():
     blame and positions equal two ``kernel.advance`` calls with the homing waypoints."""
     from atc_nf_env import kernel
     from atc_nf_env.config import SimConfig
-    from atc_nf_env.shield_prediction import NONE_SAFE, PlanPredictor, homing_waypoints
+    from atc_nf_env.shield_prediction import NONE_SAFE, PlanPredictor, _homing_waypoints
     from atc_nf_env.simulation import initial_state
 
     rng = np.random.default_rng(0)
@@ -358,7 +358,7 @@ def test_the_compiled_prediction_is_the_kernels_flight_bit_for_bit():
             after_first = world[0, :, :2].copy()
             if survived is None and (world[0, :, kernel.S_STATUS] == kernel.FLYING).any():
                 home = np.empty((n, 2))
-                homing_waypoints(world[0], candidate, 130.0, np.pi / 3, limit, home)
+                _homing_waypoints(world[0], candidate, 130.0, np.pi / 3, limit, home)
                 trace = kernel.advance(world, home[None], wind[None], 300.0, params, scratch=kernel.KernelScratch())
                 if trace.violated[0]:
                     survived = 60 + int(trace.steps_done[0]) - 1
@@ -371,3 +371,44 @@ def test_the_compiled_prediction_is_the_kernels_flight_bit_for_bit():
         else:
             assert first == NONE_SAFE
         assert (predictor.survived[first + 1 if first >= 0 else len(candidates):len(candidates)] == -1).all()
+
+
+def test_the_compiled_prediction_refuses_what_it_cannot_fly():
+    """Its compiled flight reads inputs unchecked: every wrong shape, dtype, layout or
+    non-finite value is refused with a ValueError naming the input before anything flies."""
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.shield_prediction import PlanPredictor
+    from atc_nf_env.simulation import initial_state
+
+    scenario = make_scenario("converging-4")
+    params = SimConfig().to_params(scenario.workspace_radius_nm, stop_on_violation=True)
+    predictor = PlanPredictor(params, 60, 2, 130.0, 1.0, 300.0)
+    state = initial_state(scenario, 1)[0]
+    good = np.ascontiguousarray(state[None, :, 5:7])
+    wind = np.zeros(2)
+    assert predictor.first_safe(state, good, wind) in (0, -1)
+    nan_wind = np.array([np.nan, 0.0])
+    bad_state = state.copy()
+    bad_state[1, 0] = np.inf
+    for args, match in (
+        ((state, good[:, :3].copy(), wind), "candidates has shape"),
+        ((state, good.astype(np.float32), wind), "candidates is ndarray"),
+        ((state, good[0], wind), "candidates is ndarray"),
+        ((state, np.zeros((0, 4, 2)), wind), "candidates has shape"),
+        ((state[:, :5].copy(), good, wind), "state has shape"),
+        ((state.T, good, wind), "state is ndarray"),
+        ((state, good, np.zeros(3)), "wind_kt has shape"),
+        ((state, good, nan_wind), "wind_kt contains NaN"),
+        ((bad_state, good, wind), "state contains NaN or inf"),
+        ((state, good.tolist(), wind), "candidates is list"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            predictor.first_safe(*args)
+    with pytest.raises(ValueError, match="stop_on_violation"):
+        PlanPredictor(SimConfig().to_params(scenario.workspace_radius_nm), 60, 2, 130.0, 1.0, 300.0)
+    for kwargs, match in (({"lookahead_periods": 3}, "lookahead_periods"), ({"period_steps": 0}, "period_steps"),
+                          ({"limit_nm": float("nan")}, "limit_nm"), ({"max_turn_rad": -1.0}, "max_turn_rad")):
+        settings = {"period_steps": 60, "lookahead_periods": 2, "home_distance_nm": 130.0, "max_turn_rad": 1.0,
+                    "limit_nm": 300.0, **kwargs}
+        with pytest.raises(ValueError, match=match):
+            PlanPredictor(params, **settings)
