@@ -477,7 +477,7 @@ class SafetyFilter:
         distribution (its ``MPCSettings``), every flying aircraft changed, and (M, N) which."""
         settings, rng, flying = self._proposal, self._rng, view.flying
         m, n = SAMPLED_ALTERNATIVES, flying.shape[0]
-        state = np.ascontiguousarray(view.state, dtype=np.float64)  # the compiled prediction reads it as is
+        state = view.state
         position = state[:, S_X : S_Y + 1]
         to_dest = state[:, S_DEST_X : S_DEST_Y + 1] - position
         bearing = np.arctan2(to_dest[:, 1], to_dest[:, 0])
