@@ -317,7 +317,7 @@ class SafetyFilter:
             candidates, changed = self._alternatives(view, planned, blamed, kind)
             displacement = np.hypot(*(candidates - planned[None]).transpose(2, 0, 1)).sum(axis=1)
             tried.append((candidates, changed))
-            ordered = np.ascontiguousarray(candidates[np.lexsort((displacement, changed.sum(axis=1)))])
+            ordered = np.ascontiguousarray(candidates[np.lexsort((displacement, changed.sum(axis=1)))], dtype=np.float64)
             index = self._predictor.first_safe(state, ordered, self._wind_estimate_kt)
             if index != NONE_SAFE:
                 counts[f"shield_{kind}_changes"] += 1
@@ -371,7 +371,8 @@ class SafetyFilter:
         the first period). Unsafe: (integration steps it stayed safe, whether the first
         period was safe, the aircraft the breach involved (N,), None, None)."""
         predictor = self._predictor
-        if predictor.first_safe(state, np.ascontiguousarray(planned[None]), self._wind_estimate_kt) != NONE_SAFE:
+        if predictor.first_safe(state, np.ascontiguousarray(planned[None]), self._wind_estimate_kt,
+                                checked=False) != NONE_SAFE:
             return None, True, None, predictor.positions.copy(), predictor.alive.copy()
         survived = int(predictor.survived[0])
         return survived, survived >= self._period_steps, predictor.blamed[0].copy(), None, None

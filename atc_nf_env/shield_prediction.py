@@ -311,7 +311,7 @@ class PlanPredictor:
             self.survived = np.full(self._capacity, -1, dtype=np.int64)
             self.blamed = np.zeros((self._capacity, n_aircraft), dtype=np.bool_)
 
-    def first_safe(self, state: np.ndarray, candidates: np.ndarray, wind_kt: np.ndarray) -> int:
+    def first_safe(self, state: np.ndarray, candidates: np.ndarray, wind_kt: np.ndarray, *, checked: bool = True) -> int:
         """Fly ``candidates`` (M, N, 2) nm one after another from a copy of ``state``
         (N, N_STATE) under the constant ``wind_kt`` (2,) kt, until one is safe.
 
@@ -322,12 +322,16 @@ class PlanPredictor:
             ``blamed[:M]`` (M, N) the aircraft each breach involved; ``positions`` (N, 2)
             and ``alive`` (N,) are the safe candidate's after the first period.
 
+        ``checked=False`` skips the checks of the inputs, for a caller that built them itself
+        (the safety filter: a few µs of every decision).
+
         Raises:
             ValueError: on a wrong shape, dtype or layout, or a NaN or inf in any input (the
                 compiled flight reads its inputs unchecked).
             FloatingPointError: if a flight produced a NaN or inf state.
         """
-        _check_inputs(state, candidates, wind_kt)
+        if checked:
+            _check_inputs(state, candidates, wind_kt)
         n_candidates, n_aircraft = candidates.shape[0], state.shape[0]
         self._buffers(n_aircraft, n_candidates)
         self.survived[:n_candidates] = -1
