@@ -86,11 +86,30 @@ def run(models: list[str], scenarios: list[str], runs: int, mpc_runs: int, out: 
             # What the cards and tables say about the runs: their settings and seeds.
             summary["study"] = {"wind_sigma_mps": header["wind_sigma_mps"], "max_time_s": header["max_time_s"],
                                 "build": header["build"], "seeds": [0, n - 1]}
+            if shielded and summary.get("shield"):
+                summary["shield"].update(breaches_after_unresolved(path))
             results[scenario][label] = summary
             p99 = summary["decision_s"].get("p99")
             print(f"{scenario}: {label} decision mean {_fmt_latency(summary['wall_s_per_decision'])} (over every "
                   f"decision), p99 {'n/a' if p99 is None else _fmt_latency(p99)}", file=sys.stderr)
     return results
+
+
+def breaches_after_unresolved(path: Path) -> dict[str, Any]:
+    """Of a shielded study's runs (``path``), those with a breach (an integration step
+    outside the envelope or a loss of separation), how many of them had the filter apply a
+    decision its own prediction found unsafe (``shield_unresolved`` > 0), and the range of
+    such decisions per breached run: whether the breaches are the filter's known
+    give-ups or escaped its prediction."""
+    _, records = read_results(path)
+    breached = [r for r in records if r["worst_excursion_kt"] > 0 or r["los_count"] > 0]
+    unresolved = [int(r.get("policy_info", {}).get("shield_unresolved", 0)) for r in breached]
+    given_up = [u for u in unresolved if u > 0]
+    return {
+        "runs_breached": len(breached),
+        "runs_breached_after_unresolved": len(given_up),
+        "unresolved_per_breached_run": [min(unresolved), max(unresolved)] if unresolved else None,
+    }
 
 
 def _fmt_latency(seconds: float) -> str:

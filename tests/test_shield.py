@@ -412,3 +412,23 @@ def test_the_compiled_prediction_refuses_what_it_cannot_fly():
                     "limit_nm": 300.0, **kwargs}
         with pytest.raises(ValueError, match=match):
             PlanPredictor(params, **settings)
+
+
+def test_the_benchmark_tells_breaches_the_filter_gave_up_on_from_those_it_missed(tmp_path):
+    """``agents.benchmark.breaches_after_unresolved`` reads a shielded study's runs: a run
+    with a breach counts as given up when the filter applied a decision it predicted unsafe."""
+    from agents.benchmark import breaches_after_unresolved
+
+    path = tmp_path / "runs.jsonl"
+    evaluate(Study(policy="nf", scenario="converging-3", max_time_s=600.0, shield=True), 2, out=path, workers=1,
+             progress=False)
+    lines = path.read_text().splitlines()
+    header, runs = lines[0], [json.loads(line) for line in lines[1:]]
+    assert breaches_after_unresolved(path)["runs_breached"] == sum(
+        r["worst_excursion_kt"] > 0 or r["los_count"] > 0 for r in runs)
+    # Make run 0 a breach with two unresolved decisions, run 1 a breach the filter missed.
+    runs[0]["worst_excursion_kt"], runs[0]["policy_info"]["shield_unresolved"] = 12.0, 2
+    runs[1]["los_count"], runs[1]["policy_info"]["shield_unresolved"] = 1, 0
+    path.write_text("\n".join([header, *(json.dumps(r) for r in runs)]) + "\n")
+    assert breaches_after_unresolved(path) == {
+        "runs_breached": 2, "runs_breached_after_unresolved": 1, "unresolved_per_breached_run": [0, 2]}
