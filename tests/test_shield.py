@@ -8,6 +8,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from atc_nf_env.cli import main
 from atc_nf_env.episode import run_episode
@@ -432,3 +434,46 @@ def test_the_benchmark_tells_breaches_the_filter_gave_up_on_from_those_it_missed
     path.write_text("\n".join([header, *(json.dumps(r) for r in runs)]) + "\n")
     assert breaches_after_unresolved(path) == {
         "runs_breached": 2, "runs_breached_after_unresolved": 1, "unresolved_per_breached_run": [0, 2]}
+
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    scenario=st.sampled_from(["converging-3", "random-4", "random-6"]),
+    seed=st.integers(0, 10_000),
+    n_candidates=st.integers(1, 6),
+    spread=st.floats(0.0, 1.5),
+    wind=st.tuples(st.floats(-30.0, 30.0), st.floats(-30.0, 30.0)),
+)
+def test_first_safe_of_a_batch_is_the_first_candidate_safe_alone(scenario, seed, n_candidates, spread, wind):
+    """Flying candidates in order until the first safe one picks what flying each alone
+    would, and reports each flown candidate's survival as it alone would: no state leaks
+    from one candidate's flight into the next."""
+    from atc_nf_env import kernel
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.shield_prediction import NONE_SAFE, PlanPredictor
+    from atc_nf_env.simulation import initial_state
+
+    sc = make_scenario(scenario, seed=seed)
+    params = SimConfig().to_params(sc.workspace_radius_nm, stop_on_violation=True)
+    predictor = PlanPredictor(params, 60, 2, 130.0, np.pi / 3, 0.99 * (sc.workspace_radius_nm - 2.5))
+    state = initial_state(sc, 1)[0]
+    rng = np.random.default_rng(seed)
+    to_dest = state[:, kernel.S_DEST_X : kernel.S_DEST_Y + 1] - state[:, :2]
+    angles = np.arctan2(to_dest[:, 1], to_dest[:, 0])[None] + rng.uniform(-spread, spread, (n_candidates, len(state)))
+    distances = rng.uniform(80.0, 150.0, (n_candidates, len(state)))
+    candidates = np.ascontiguousarray(
+        state[None, :, :2] + distances[..., None] * np.stack([np.cos(angles), np.sin(angles)], axis=-1))
+    wind_kt = np.array(wind)
+    first = predictor.first_safe(state, candidates, wind_kt)
+    batch_survived, batch_blamed = predictor.survived[:n_candidates].copy(), predictor.blamed[:n_candidates].copy()
+    alone = []
+    for candidate in candidates:
+        index = predictor.first_safe(state, np.ascontiguousarray(candidate[None]), wind_kt)
+        alone.append((index == 0, int(predictor.survived[0]), predictor.blamed[0].copy()))
+    expected = next((m for m, (safe, _, _) in enumerate(alone) if safe), NONE_SAFE)
+    assert first == expected
+    for m in range(n_candidates if first == NONE_SAFE else first + 1):
+        assert batch_survived[m] == alone[m][1]
+        if not alone[m][0]:
+            assert np.array_equal(batch_blamed[m], alone[m][2])
