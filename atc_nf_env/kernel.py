@@ -102,11 +102,12 @@ some of its steps finer):
    term takes as long to double from 50 to 100 kt as it then takes to blow up). The watch also
    acts in ordinary flights, where a neighbour closing in gives a term of tens of kt,
    and makes those steps finer and dearer (``bench/substep_watch_study.py``, 8 seeds of
-   converging-6 and random-6 side by side): a watch from 10 kt made the MPC's decisions
-   1.3x and the safety filter's 1.9-2.5x as long as without a watch, from 25 kt up to
-   1.14x and 1.22x, from 50 kt up to 1.08x and 1.09x. Its effect at the saddle was the
-   same from 10 to 50 kt (the mean over perturbed starts moves by 0.13 nm on halving
-   dt, 0.43 nm without a watch), so it watches from half the rule's onset.
+   converging-6 and random-6 side by side; BENCHMARKS.md, "Guard 8's watch", has the
+   ratios of its last run, which move with the machine's load and with the filter's own
+   cost): a watch from 10 kt made the MPC's decisions about 1.3x and the safety filter's
+   2-3x as long as without a watch, one from 50 kt within about 10 %. Its effect at the
+   saddle was the same from 10 to 50 kt (the mean over perturbed starts moves by 0.13 nm
+   on halving dt, 0.43 nm without a watch), so it watches from half the rule's onset.
    What is left: the rule keeps the encounter's rotation symmetry, and the pinwheel it
    flies around the centre is unstable and splits by rounding (4 aircraft: two turn
    away first, relieving the other two): starts perturbed by 1e-12 nm move the minimum
