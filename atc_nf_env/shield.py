@@ -115,7 +115,6 @@ _ROW_FIELDS = [S_X, S_Y, S_HEADING, S_DEST_X, S_DEST_Y, S_STATUS]
 _X, _Y, _HEADING, _DEST_X, _DEST_Y, _STATUS = range(len(_ROW_FIELDS))
 
 
-
 def _finite_number(name: str, value: Any, low: float, high: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise TypeError(f"{name} = {value!r}: must be a number")
@@ -309,9 +308,9 @@ class SafetyFilter:
             counts["shield_homing_decisions"] += 1
         if period1_ok:
             counts["shield_filtered_for_lookahead"] += 1
-        # Unsafe: the alternatives in the order they would be chosen (fewest aircraft
-        # changed, then the least displacement), each predicted alone until the first safe
-        # one: single-aircraft changes of the blamed aircraft, then all-aircraft ones.
+        # Unsafe: tier by tier (ALTERNATIVE_KINDS), the alternatives in the order they would
+        # be chosen (fewest aircraft changed, then the least displacement), each predicted
+        # alone until the first safe one.
         tried = []
         for kind in ALTERNATIVE_KINDS:
             candidates, changed = self._alternatives(view, planned, blamed, kind)
@@ -418,7 +417,8 @@ class SafetyFilter:
         the workspace (``_homing_waypoints``); the others keep their current waypoint."""
         home = states[:, :, S_WP_X : S_WP_Y + 1].copy()
         for world, out in zip(states, home):
-            _homing_waypoints(world, out.copy(), distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm, out)
+            # ``out`` is also what the others keep: their rows are read back unchanged.
+            _homing_waypoints(world, out, distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm, out)
         return home
 
     def _homing_one(self, state: np.ndarray, keep: np.ndarray) -> np.ndarray:
