@@ -102,7 +102,8 @@ def breaches_after_unresolved(path: Path) -> dict[str, Any]:
     such decisions per breached run: whether the breaches are the filter's known
     give-ups or escaped its prediction."""
     _, records = read_results(path)
-    breached = [r for r in records if r["worst_excursion_kt"] > 0 or r["los_count"] > 0]
+    # The predicates of the summary's runs_with_envelope_violation and runs_with_los.
+    breached = [r for r in records if r["envelope_violation_fraction"] > 0 or r["los_count"] > 0]
     unresolved = [int(r.get("policy_info", {}).get("shield_unresolved", 0)) for r in breached]
     given_up = [u for u in unresolved if u > 0]
     return {

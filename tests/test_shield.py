@@ -427,9 +427,9 @@ def test_the_benchmark_tells_breaches_the_filter_gave_up_on_from_those_it_missed
     lines = path.read_text().splitlines()
     header, runs = lines[0], [json.loads(line) for line in lines[1:]]
     assert breaches_after_unresolved(path)["runs_breached"] == sum(
-        r["worst_excursion_kt"] > 0 or r["los_count"] > 0 for r in runs)
+        r["envelope_violation_fraction"] > 0 or r["los_count"] > 0 for r in runs)
     # Make run 0 a breach with two unresolved decisions, run 1 a breach the filter missed.
-    runs[0]["worst_excursion_kt"], runs[0]["policy_info"]["shield_unresolved"] = 12.0, 2
+    runs[0]["envelope_violation_fraction"], runs[0]["policy_info"]["shield_unresolved"] = 0.01, 2
     runs[1]["los_count"], runs[1]["policy_info"]["shield_unresolved"] = 1, 0
     path.write_text("\n".join([header, *(json.dumps(r) for r in runs)]) + "\n")
     assert breaches_after_unresolved(path) == {
