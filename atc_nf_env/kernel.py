@@ -393,7 +393,10 @@ def _commands(
         if status[i] != FLYING:
             continue
         dphi_dt = command[i, C_DPHI_DT]
-        u = command[i, C_U_FEEDBACK] - (dphi_dt + abs(dphi_dt)) / (2.0 * command[i, C_P])
+        u = command[i, C_U_FEEDBACK]
+        if dphi_dt > 0.0:
+            # (∂Φ_i/∂t + |∂Φ_i/∂t|) is exactly 0 otherwise: the division would subtract ±0.
+            u -= (dphi_dt + abs(dphi_dt)) / (2.0 * command[i, C_P])
         if not -u_cap < u < u_cap:
             refine = True
             u = min(max(u, -u_cap), u_cap)  # guard 2

@@ -213,23 +213,26 @@ def nf_along_direction(
         n_near += 1
         h, dh = proximity_bump((dist2 - contact2) * inv_beta_s, c_bar)
         g_prox *= h
-        # h'_j ∇_j s_ij, with ∇_j s_ij = −2 (q_i − q_j) / β_s.
-        grad_out[j, 0] = -2.0 * rx * inv_beta_s * dh
-        grad_out[j, 1] = -2.0 * ry * inv_beta_s * dh
-    # ∇_j G_i = Π_{k≠j} h_k · h'_j ∇_j s_ij. A neighbour with h'_j ≠ 0 has h_j > 0, so
-    # Π_{k≠j} h_k = G_i / h_j (zero when another neighbour touches, as it must be).
+        # Kept for the second pass, which needs G_i first: h_j and h'_j (h_j > 0 marks a
+        # neighbour there, since the second pass runs only where G_i > 0).
+        grad_out[j, 0] = h
+        grad_out[j, 1] = dh
+    # ∇_j G_i = Π_{k≠j} h_k · h'_j ∇_j s_ij, with ∇_j s_ij = −2 (q_i − q_j) / β_s. Every
+    # neighbour has h_j > 0 when G_i > 0, so Π_{k≠j} h_k = G_i / h_j (zero when another
+    # neighbour touches, as it must be).
     grad_g_ix = 0.0
     grad_g_iy = 0.0
     if n_near > 0 and g_prox > 0.0:
         for j in range(n):
-            if grad_out[j, 0] == 0.0 and grad_out[j, 1] == 0.0:
+            h = grad_out[j, 0]
+            if h == 0.0:
                 continue
+            dh = grad_out[j, 1]
             rx = xi - pos[j, 0] * inv_len
             ry = yi - pos[j, 1] * inv_len
-            h, _ = proximity_bump((rx * rx + ry * ry - contact2) * inv_beta_s, c_bar)
             others = g_prox / h
-            grad_out[j, 0] *= others
-            grad_out[j, 1] *= others
+            grad_out[j, 0] = -2.0 * rx * inv_beta_s * dh * others
+            grad_out[j, 1] = -2.0 * ry * inv_beta_s * dh * others
             grad_g_ix -= grad_out[j, 0]
             grad_g_iy -= grad_out[j, 1]
     elif n_near > 0:

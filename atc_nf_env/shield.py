@@ -287,7 +287,7 @@ class SafetyFilter:
             # The MCMC-MPC's decision for them (the filter's wind estimate shared), every
             # other aircraft keeping the policy's waypoint.
             if self._mpc is None:
-                home = self._homing_one(state, planned)
+                home = self._homing(state, planned)
                 for i in homed:
                     planned[i] = home[i]
             else:
@@ -394,7 +394,7 @@ class SafetyFilter:
         positions = alive = None
         for period in range(self.lookahead_periods):
             if period > 0:
-                waypoints = self._homing(states, self.home_distance_nm)
+                waypoints = self._homing(states)
                 waypoints[:, ~flying0] = base_state[None, ~flying0, S_WP_X : S_WP_Y + 1]
             trace = kernel.advance(states, waypoints, wind, self.period_s, self._params, scratch=self._scratch)
             done = np.where(trace.violated, trace.steps_done - 1, self._period_steps)
@@ -411,23 +411,19 @@ class SafetyFilter:
             status[newly_bad] = np.where(status[newly_bad] == FLYING, ABSENT, status[newly_bad])
         return survived, positions, alive
 
-    def _homing(self, states: np.ndarray, distance_nm: float) -> np.ndarray:
-        """Waypoints (B, N, 2): each flying aircraft aimed at its destination
-        ``distance_nm`` out, turned at most ``recovery_angle_rad`` from its heading, inside
-        the workspace (``_homing_waypoints``); the others keep their current waypoint."""
-        home = states[:, :, S_WP_X : S_WP_Y + 1].copy()
-        for world, out in zip(states, home):
+    def _homing(self, states: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
+        """Waypoints (B, N, 2) of worlds ``states`` (B, N, N_STATE), or (N, 2) of one world
+        (N, N_STATE): each flying aircraft aimed at its destination ``home_distance_nm``
+        out, turned at most ``recovery_angle_rad`` from its heading, inside the workspace
+        (the prediction's own compiled ``_homing_waypoints``); the others keep ``keep``
+        (same shape as the result; their current waypoints by default)."""
+        one = states.ndim == 2
+        worlds = states[None] if one else states
+        home = (worlds[:, :, S_WP_X : S_WP_Y + 1] if keep is None else np.reshape(keep, (len(worlds), -1, 2))).copy()
+        for world, out in zip(worlds, home):
             # ``out`` is also what the others keep: their rows are read back unchanged.
-            _homing_waypoints(world, out, distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm, out)
-        return home
-
-    def _homing_one(self, state: np.ndarray, keep: np.ndarray) -> np.ndarray:
-        """``_homing`` of one world (N, N_STATE) as (N, 2), from the prediction's own
-        compiled ``_homing_waypoints``; aircraft not flying keep ``keep``."""
-        home = np.empty((state.shape[0], 2))
-        _homing_waypoints(state, np.ascontiguousarray(keep, dtype=np.float64), self.home_distance_nm,
-                         self.recovery_angle_rad, self._waypoint_limit_nm, home)
-        return home
+            _homing_waypoints(world, out, self.home_distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm, out)
+        return home[0] if one else home
 
     def _stalled(self, time_s: float, rows: list[list[float]], flying: list[bool]) -> list[int]:
         """The flying aircraft the stall rule hands to the MPC: those that, over the last
@@ -448,11 +444,6 @@ class SafetyFilter:
                     self._homebound[i] = True
                     self._counts["shield_stalled_aircraft"] += 1
         return [i for i, bound in enumerate(self._homebound) if bound and flying[i]]
-
-    def _inside(self, waypoints: np.ndarray) -> np.ndarray:
-        """Waypoints pulled toward the centre where they lie outside the workspace."""
-        radius = np.hypot(waypoints[..., 0], waypoints[..., 1])
-        return waypoints * np.minimum(1.0, self._waypoint_limit_nm / np.maximum(radius, 1e-12))[..., None]
 
     def _alternatives(
         self, view: WorldView, planned: np.ndarray, blamed: np.ndarray, kind: str
@@ -476,22 +467,20 @@ class SafetyFilter:
     def _sampled(self, view: WorldView, planned: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``SAMPLED_ALTERNATIVES`` waypoint sets (M, N, 2) from the MCMC-MPC's proposal
         distribution (its ``MPCSettings``), every flying aircraft changed, and (M, N) which."""
-        settings, rng, flying = self._proposal, self._rng, view.flying
-        m, n = SAMPLED_ALTERNATIVES, flying.shape[0]
-        state = view.state
+        from baselines.mcmc_mpc import homing_mixture_draws, inside_workspace
+
+        settings, flying, state = self._proposal, view.flying, view.state
         position = state[:, S_X : S_Y + 1]
         to_dest = state[:, S_DEST_X : S_DEST_Y + 1] - position
-        bearing = np.arctan2(to_dest[:, 1], to_dest[:, 0])
-        heading = state[:, S_HEADING]
-        around_heading = rng.random((m, n)) < settings.recovery_fraction
-        angle = np.where(
-            around_heading,
-            heading + rng.uniform(-settings.recovery_angle_rad, settings.recovery_angle_rad, (m, n)),
-            bearing + rng.uniform(-settings.angle_range_rad, settings.angle_range_rad, (m, n)),
+        direction, distance = homing_mixture_draws(
+            self._rng, settings, state[:, S_HEADING], np.arctan2(to_dest[:, 1], to_dest[:, 0]),
+            SAMPLED_ALTERNATIVES, settings.recovery_fraction, settings.distance_std_nm,
         )
-        distance = np.maximum(rng.normal(settings.distance_mean_nm, settings.distance_std_nm, (m, n)), 1.0)
-        variants = self._inside(position + distance[..., None] * np.stack([np.cos(angle), np.sin(angle)], axis=-1))
-        return np.where(flying[None, :, None], variants, planned[None]), np.repeat(flying[None], m, axis=0)
+        distance = np.maximum(distance, 1.0)
+        variants = inside_workspace(position + distance[..., None] * np.stack([np.cos(direction), np.sin(direction)],
+                                                                              axis=-1), self._waypoint_limit_nm)
+        return np.where(flying[None, :, None], variants, planned[None]), np.repeat(flying[None], SAMPLED_ALTERNATIVES,
+                                                                                   axis=0)
 
     def _remember(self, view: WorldView, positions: np.ndarray, alive: np.ndarray) -> None:
         """Keep where the applied waypoints are predicted to put the aircraft after one period."""

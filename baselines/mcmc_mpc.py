@@ -296,6 +296,45 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
+def inside_workspace(waypoints: np.ndarray, limit_nm: float) -> np.ndarray:
+    """Waypoints (..., 2) nm pulled toward the centre to within ``limit_nm`` of it, in place;
+    returns them. (The safety filter's compiled alternatives use the scalar counterpart,
+    ``atc_nf_env.shield_prediction._inside``.)"""
+    radius = np.hypot(waypoints[..., 0], waypoints[..., 1])
+    waypoints *= np.minimum(1.0, limit_nm / np.maximum(radius, 1e-12))[..., None]
+    return waypoints
+
+
+def homing_mixture_draws(
+    rng: np.random.Generator,
+    settings: MPCSettings,
+    heading: np.ndarray,
+    bearing: np.ndarray,
+    count: int,
+    heading_share: float,
+    distance_std_nm: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` draws of the "homing" proposal's waypoints of N aircraft: directions (count,
+    N) rad and distances (count, N) nm.
+
+    Per aircraft, a mixture: with probability ``heading_share`` an angle uniform in
+    ±``settings.recovery_angle_rad`` around its heading (N,) rad, otherwise uniform in
+    ±``settings.angle_range_rad`` around its bearing (N,) rad to the destination; the
+    distance is normal around ``settings.distance_mean_nm`` with ``distance_std_nm``. The
+    MCMC-MPC draws its candidates from it, and the safety filter its sampled alternatives.
+    """
+    n = heading.shape[0]
+    distance = rng.normal(settings.distance_mean_nm, distance_std_nm, (count, n))
+    around_heading = rng.random((count, n)) < heading_share
+    angle = rng.uniform(-1.0, 1.0, (count, n))
+    direction = np.where(
+        around_heading,
+        heading[None, :] + settings.recovery_angle_rad * angle,
+        bearing[None, :] + settings.angle_range_rad * angle,
+    )
+    return direction, distance
+
+
 @dataclass
 class DecisionRecord:
     """What one decision saw: the feasible fraction of the K candidates (None where the
@@ -580,39 +619,27 @@ class MCMCMPC:
             [np.cos(direction), np.sin(direction)], axis=-1
         )
         # A waypoint must stay inside the workspace: pull it toward the centre if needed.
-        limit = 0.99 * (self._workspace_radius_nm - self._config.aircraft_radius_nm)
-        radius = np.hypot(proposals[..., 0], proposals[..., 1])
-        scale = np.minimum(1.0, limit / np.maximum(radius, 1e-12))
-        proposals *= scale[..., None]
-        return proposals, log_g
+        return inside_workspace(proposals, 0.99 * (self._workspace_radius_nm - self._config.aircraft_radius_nm)), log_g
 
     def _homing_draws(
         self, view: WorldView, bearing: np.ndarray, round_index: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Directions (K, N) rad, distances (K, N) nm and log g (K,) of the "homing" proposal.
 
-        Per aircraft, a mixture: with probability 1 − f the paper's angle (uniform in
-        ±angle_range around the line to the destination), with probability f an angle
-        uniform in ±recovery_angle around the current heading; the distance is normal
-        around the paper's mean. Candidate 0, the chain's initial state, is every
+        Per aircraft, a mixture (``homing_mixture_draws``): with probability 1 − f the
+        paper's angle (uniform in ±angle_range around the line to the destination), with
+        probability f an angle uniform in ±recovery_angle around the current heading; the
+        distance is normal around the paper's mean. Candidate 0, the chain's initial state, is every
         aircraft aimed home at the mean distance (turned at most recovery_angle from its
         heading). Each wider round halves the paper's share 1 − f and adds the paper's σ to
         the distance's.
         """
         s = self.settings
-        k, n = s.extractions, view.state.shape[0]
         heading = view.headings
         # Round r leaves the paper's angles a share (1 − f) / 2^r.
         f = 1.0 - (1.0 - s.recovery_fraction) / 2**round_index
         sigma = s.distance_std_nm * (1 + round_index)
-        distance = self._rng.normal(s.distance_mean_nm, sigma, (k, n))
-        around_heading = self._rng.random((k, n)) < f
-        angle = self._rng.uniform(-1.0, 1.0, (k, n))
-        direction = np.where(
-            around_heading,
-            heading[None, :] + s.recovery_angle_rad * angle,
-            bearing[None, :] + s.angle_range_rad * angle,
-        )
+        direction, distance = homing_mixture_draws(self._rng, s, heading, bearing, s.extractions, f, sigma)
         # The initial state: aimed home, or as near home as a turn of recovery_angle allows
         # (a waypoint far behind the heading would command a reverse airspeed).
         home = heading + np.clip(_wrap(bearing - heading), -s.recovery_angle_rad, s.recovery_angle_rad)
