@@ -6,6 +6,9 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import run_episode
@@ -269,3 +272,59 @@ def test_settings_default_to_the_paper():
     assert (s.period_s, s.horizon, s.extractions) == (300.0, 4, 1000)
     assert (s.distance_mean_nm, s.distance_std_nm, s.angle_range_rad) == (100.0, 10.0, math.pi / 2)
     assert s.proposal == "homing"
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    waypoints=hnp.arrays(np.float64, st.tuples(st.integers(1, 5), st.integers(1, 4), st.just(2)),
+                         elements=st.floats(-2000.0, 2000.0)),
+    limit=st.floats(1.0, 1000.0),
+)
+def test_inside_workspace_pulls_only_what_lies_outside_and_keeps_the_direction(waypoints, limit) -> None:
+    from baselines.mcmc_mpc import inside_workspace
+
+    before = waypoints.copy()
+    pulled = inside_workspace(waypoints, limit)
+    assert pulled is waypoints  # in place
+    radius_before = np.hypot(before[..., 0], before[..., 1])
+    radius_after = np.hypot(pulled[..., 0], pulled[..., 1])
+    inside = radius_before <= limit
+    np.testing.assert_array_equal(pulled[inside], before[inside])
+    assert (radius_after <= limit * (1 + 1e-12)).all()
+    outside = ~inside
+    # Pulled along the line to the centre: the same direction, at the limit.
+    np.testing.assert_allclose(radius_after[outside], limit, rtol=1e-12)
+    cross = before[..., 0] * pulled[..., 1] - before[..., 1] * pulled[..., 0]
+    np.testing.assert_allclose(cross[outside], 0.0, atol=1e-9 * limit * (radius_before[outside].max(initial=1.0)))
+
+
+def test_homing_mixture_draws_keep_the_settings_ranges_and_the_heading_share() -> None:
+    """``homing_mixture_draws`` (the MPC's candidates and the safety filter's sampled
+    alternatives): its angles lie within the settings' ranges of the heading or of the
+    bearing, the share around the heading is the one asked for, and a stream repeats."""
+    from baselines.mcmc_mpc import homing_mixture_draws
+
+    s = MPCSettings()
+    heading = np.array([0.3, -2.0, 1.0])
+    bearing = np.array([1.2, -2.5, -1.0])
+    direction, distance = homing_mixture_draws(np.random.default_rng(3), s, heading, bearing, 20_000, 0.25,
+                                               s.distance_std_nm)
+    assert direction.shape == distance.shape == (20_000, 3)
+    near_heading = np.abs(direction - heading) <= s.recovery_angle_rad + 1e-12
+    near_bearing = np.abs(direction - bearing) <= s.angle_range_rad + 1e-12
+    assert (near_heading | near_bearing).all()
+    # Aircraft 0: heading and bearing 0.9 rad apart, the supports overlap; aircraft 2: 2 rad
+    # apart, so a draw beyond the bearing's range is one around the heading.
+    # Aircraft 2: its heading's support [h - r, h + r] reaches beyond its bearing's, and only
+    # the draws around the heading (a share 0.25) land there, uniformly over 2r.
+    h, b, r, a = heading[2], bearing[2], s.recovery_angle_rad, s.angle_range_rad
+    beyond = max(0.0, (h + r) - max(h - r, b + a)) + max(0.0, min(h + r, b - a) - (h - r))
+    expected = 0.25 * beyond / (2.0 * r)
+    assert expected > 0.05  # the case tests something
+    only_heading = (near_heading[:, 2] & ~near_bearing[:, 2]).mean()
+    assert abs(only_heading - expected) < 5.0 * math.sqrt(expected * (1 - expected) / 20_000)
+    np.testing.assert_allclose(distance.mean(), s.distance_mean_nm, atol=0.5)
+    np.testing.assert_allclose(distance.std(), s.distance_std_nm, rtol=0.05)
+    # The same stream gives the same draws (the filter's sampled tier is seeded by the episode).
+    again = homing_mixture_draws(np.random.default_rng(3), s, heading, bearing, 20_000, 0.25, s.distance_std_nm)
+    assert np.array_equal(again[0], direction) and np.array_equal(again[1], distance)
