@@ -237,8 +237,9 @@ def main(argv: list[str] | None = None) -> int:
             f"libm calls as they are would need that rest to fall to "
             f"{(floor['step_ns'] / 2 - floor['libm_ns']) / (floor['step_ns'] - floor['libm_ns']):.0%} of "
             "its time; the way there is to fly several worlds in the "
-            "lanes of one SIMD register, which the per-world loop of this kernel does not do, and libm "
-            "calls that are bit for bit the same in a vector lane as alone.",
+            "lanes of one SIMD register, which the per-world loop of this kernel does not do "
+            "(`bench/layout_probe.py` measures the NF's core in that layout, BENCHMARKS.md \"A probe for the "
+            "kernel's layout\"), and libm calls that are bit for bit the same in a vector lane as alone.",
         ]
     )
     print(text)
