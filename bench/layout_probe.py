@@ -4,7 +4,8 @@ with branches (as the kernel flies it) against structure of arrays without branc
 For aircraft 0 of each of B worlds of N aircraft (positions from a converging-N start
 perturbed at random, so that neighbours fall inside and outside the sensing radius), both
 versions compute G_0 = Π_j h(s_0j) with the kernel's own bump (``nf.proximity_bump``'s
-arithmetic) and the NF's scale D^(−1/k−1) with k = 2 (a square root and a division):
+arithmetic) and a scale of the NF's form D^(−1/k−1) with k = 2 (a square root and a division;
+f_i simplified to a0 (1 − G_0), and the gradients with respect to the neighbours left out):
 
 - per world: one world after another, the neighbour loop skipping a neighbour out of range
   and the bump branching on s, as ``nf.nf_along_direction`` does;
@@ -43,7 +44,7 @@ from atc_nf_env.scenarios import converging
 @njit(fastmath=FAST_MATH_FLAGS, error_model="numpy")  # not cached: inspect_asm needs the compilation
 def per_world(pos: np.ndarray, wp: np.ndarray, consts: tuple, out: np.ndarray) -> None:
     """pos (B, N, 2) nm, wp (B, 2) nm; out (B,): the scale D^(−3/2) of aircraft 0, k = 2."""
-    inv_len, _, _, beta0_max, contact2, inv_beta_s, c_bar, r_sense2, eps_nh, a0, x_cut = consts
+    inv_len, _, _, beta0_max, contact2, inv_beta_s, c_bar, r_sense2, eps_nh, a0, _ = consts
     for b in range(pos.shape[0]):
         xi = pos[b, 0, 0] * inv_len
         yi = pos[b, 0, 1] * inv_len
@@ -74,7 +75,7 @@ def per_world(pos: np.ndarray, wp: np.ndarray, consts: tuple, out: np.ndarray) -
 def structure_of_arrays(x: np.ndarray, y: np.ndarray, wx: np.ndarray, wy: np.ndarray, consts: tuple,
                         g: np.ndarray, out: np.ndarray) -> None:
     """x, y (N, B) nm; wx, wy (B,) nm; g (B,) scratch; out (B,): as ``per_world``."""
-    inv_len, _, _, beta0_max, contact2, inv_beta_s, c_bar, r_sense2, eps_nh, a0, x_cut = consts
+    inv_len, _, _, beta0_max, contact2, inv_beta_s, c_bar, r_sense2, eps_nh, a0, _ = consts
     n_worlds = x.shape[1]
     for b in range(n_worlds):
         g[b] = 1.0

@@ -30,8 +30,25 @@ import numpy as np
 from _report import machine, write_section  # bench/ is on sys.path when run as a script
 from numba import njit, prange
 from soa_step_probe import (
-    COS_D, FRESH, HEADING, LAST_SUB, OMEGA_PREV, PATH, SIN_D, THETA_D, THETA_NH, TIME, VX_PREV, VY_PREV, WP_X,
-    WP_Y, X, Y, AIRSPEED, _wrap, to_fields,
+    AIRSPEED,
+    COS_D,
+    FRESH,
+    HEADING,
+    LAST_SUB,
+    OMEGA_PREV,
+    PATH,
+    SIN_D,
+    THETA_D,
+    THETA_NH,
+    TIME,
+    VX_PREV,
+    VY_PREV,
+    WP_X,
+    WP_Y,
+    X,
+    Y,
+    _wrap,
+    to_fields,
 )
 
 from atc_nf_env import kernel, nf
@@ -59,11 +76,12 @@ def _bump(sv: float, c_bar: float) -> tuple[float, float]:
 def fly(s: np.ndarray, wind: np.ndarray, params: np.ndarray, n_steps: int, per_aircraft: np.ndarray,
         pairs: np.ndarray) -> tuple[int, int]:
     """Fly ``s`` (F, N, B) for ``n_steps`` ordinary steps with neighbours; ``wind`` (2, B)
-    kt; scratch ``per_aircraft`` (13, N, B) and ``pairs`` (2, N, N, B), the gradients of
+    kt; scratch ``per_aircraft`` (10, N, B) and ``pairs`` (2, N, N, B), the gradients of
     Φ_i with respect to each neighbour j. Returns (steps that were not ordinary: a
     saturated command, the watch or the right-hand rule, which the kernel flies otherwise;
     aircraft-steps with a neighbour in range)."""
-    inv_len, k, inv_k, beta0_max, contact2, inv_beta_s, c_bar, r_sense2, eps_nh, a0, x_cut = nf.nf_constants(params)
+    # k = 2 (the default) is assumed: a**k is a*a and the k-th root a square root, as in the kernel's k == 2 path.
+    inv_len, _, inv_k, beta0_max, contact2, inv_beta_s, c_bar, r_sense2, eps_nh, a0, x_cut = nf.nf_constants(params)
     k_u, k_z, k_theta = params[nf.P_K_U], params[nf.P_K_Z], params[nf.P_K_THETA]
     u_cap, p_floor, grad_floor = params[nf.P_U_CAP], params[nf.P_P_FLOOR], params[nf.P_GRAD_FLOOR]
     gain, substep_from = params[nf.P_DPHI_DT_GAIN], params[nf.P_SUBSTEP_FROM]
@@ -72,10 +90,9 @@ def fly(s: np.ndarray, wind: np.ndarray, params: np.ndarray, n_steps: int, per_a
     inv_dt = 1.0 / dt
     nm_per_kt_step = dt / SECONDS_PER_HOUR
     n, b_count = s.shape[1], s.shape[2]
-    cos_h, sin_h, gix, giy, theta_nh_of, u_fb, p_of, near_of, arg_y, arg_x, g_of, coef_g_of, spare = (
+    cos_h, sin_h, gix, giy, theta_nh_of, u_fb, p_of, near_of, arg_y, arg_x = (
         per_aircraft[0], per_aircraft[1], per_aircraft[2], per_aircraft[3], per_aircraft[4], per_aircraft[5],
-        per_aircraft[6], per_aircraft[7], per_aircraft[8], per_aircraft[9], per_aircraft[10], per_aircraft[11],
-        per_aircraft[12])
+        per_aircraft[6], per_aircraft[7], per_aircraft[8], per_aircraft[9])
     gjx_of, gjy_of = pairs[0], pairs[1]
     unusual = 0
     near_steps = 0
@@ -296,7 +313,7 @@ def _measure(scenario_name: str, n_worlds: int, start_min: float, rounds: int) -
     flown = state.copy()
     kernel.advance(flown, waypoints, wind, DECISION_PERIOD_S, params)
     wind_t = np.ascontiguousarray(wind.T)
-    per_aircraft, pairs = np.empty((13, n, b)), np.empty((2, n, n, b))
+    per_aircraft, pairs = np.empty((10, n, b)), np.empty((2, n, n, b))
     probe = to_fields(state)
     unusual, near_steps = fly(probe, wind_t, params, n_steps, per_aircraft, pairs)
     if unusual:

@@ -78,7 +78,7 @@ def fly(s: np.ndarray, wind: np.ndarray, params: np.ndarray, n_steps: int, scrat
     consts = nf.nf_constants(params)
     inv_len, k, inv_k, beta0_max, _, _, _, _, eps_nh, a0, x_cut = consts
     k_u, k_z, k_theta = params[nf.P_K_U], params[nf.P_K_Z], params[nf.P_K_THETA]
-    u_cap, p_floor, grad_floor = params[nf.P_U_CAP], params[nf.P_P_FLOOR], params[nf.P_GRAD_FLOOR]
+    u_cap, grad_floor = params[nf.P_U_CAP], params[nf.P_GRAD_FLOOR]
     dt = params[nf.P_DT]
     inv_dt = 1.0 / dt
     nm_per_kt_step = dt / SECONDS_PER_HOUR

@@ -15,7 +15,7 @@ from atc_nf_env.config import SimConfig
 from atc_nf_env.nf import nf_constants
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from layout_probe import per_world, structure_of_arrays  # noqa: E402
+from layout_probe import per_world, structure_of_arrays
 
 CONSTS = nf_constants(SimConfig().to_params(250.0))
 
