@@ -47,7 +47,9 @@ from soa_step_probe import (
     WP_Y,
     X,
     Y,
-    _wrap,
+    feedback,
+    move,
+    own_gradient,
     to_fields,
 )
 
@@ -56,9 +58,7 @@ from atc_nf_env.config import SimConfig
 from atc_nf_env.nf import FAST_MATH_FLAGS
 from atc_nf_env.scenarios import make_scenario
 from atc_nf_env.simulation import initial_state
-from atc_nf_env.units import DECISION_PERIOD_S, SECONDS_PER_HOUR
-
-_PI = math.pi
+from atc_nf_env.units import DECISION_PERIOD_S
 
 
 @njit(fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
@@ -80,15 +80,12 @@ def fly(s: np.ndarray, wind: np.ndarray, params: np.ndarray, n_steps: int, per_a
     Φ_i with respect to each neighbour j. Returns (steps that were not ordinary: a
     saturated command, the watch or the right-hand rule, which the kernel flies otherwise;
     aircraft-steps with a neighbour in range)."""
-    # k = 2 (the default) is assumed: a**k is a*a and the k-th root a square root, as in the kernel's k == 2 path.
-    inv_len, _, inv_k, beta0_max, contact2, inv_beta_s, c_bar, r_sense2, eps_nh, a0, x_cut = nf.nf_constants(params)
-    k_u, k_z, k_theta = params[nf.P_K_U], params[nf.P_K_Z], params[nf.P_K_THETA]
-    u_cap, p_floor, grad_floor = params[nf.P_U_CAP], params[nf.P_P_FLOOR], params[nf.P_GRAD_FLOOR]
-    gain, substep_from = params[nf.P_DPHI_DT_GAIN], params[nf.P_SUBSTEP_FROM]
+    # k = 2 (the default) is assumed, as in ``own_gradient``.
+    consts = nf.nf_constants(params)
+    inv_len, _, _, _, contact2, inv_beta_s, c_bar, r_sense2, _, _, _ = consts
+    u_cap, gain, substep_from = params[nf.P_U_CAP], params[nf.P_DPHI_DT_GAIN], params[nf.P_SUBSTEP_FROM]
     turn_angle, turn_from = params[nf.P_RIGHT_TURN], params[nf.P_RIGHT_TURN_FROM]
     dt = params[nf.P_DT]
-    inv_dt = 1.0 / dt
-    nm_per_kt_step = dt / SECONDS_PER_HOUR
     n, b_count = s.shape[1], s.shape[2]
     cos_h, sin_h, gix, giy, theta_nh_of, u_fb, p_of, near_of, arg_y, arg_x = (
         per_aircraft[0], per_aircraft[1], per_aircraft[2], per_aircraft[3], per_aircraft[4], per_aircraft[5],
@@ -105,18 +102,8 @@ def fly(s: np.ndarray, wind: np.ndarray, params: np.ndarray, n_steps: int, per_a
         # the step's start (nf.nf_along_direction's two passes over the neighbours).
         for i in range(n):
             for b in prange(b_count):
-                x = s[X, i, b]
-                y = s[Y, i, b]
-                ed_x = s[COS_D, i, b]
-                ed_y = s[SIN_D, i, b]
-                xi = x * inv_len
-                yi = y * inv_len
-                dx = (x - s[WP_X, i, b]) * inv_len
-                dy = (y - s[WP_Y, i, b]) * inv_len
-                gamma = dx * dx + dy * dy
-                p_axis = ed_x * dx + ed_y * dy
-                h_nh = eps_nh + p_axis * p_axis
-                beta0 = beta0_max - (xi * xi + yi * yi)
+                xi = s[X, i, b] * inv_len
+                yi = s[Y, i, b] * inv_len
                 g = 1.0
                 near = 0.0
                 for j in range(n):
@@ -148,52 +135,26 @@ def fly(s: np.ndarray, wind: np.ndarray, params: np.ndarray, n_steps: int, per_a
                     gjy_of[i, j, b] = oy
                     grad_gx -= ox
                     grad_gy -= oy
-                g_rel = g / x_cut
-                f_in = a0 * (1.0 - 3.0 * g_rel * g_rel + 2.0 * g_rel * g_rel * g_rel)
-                df_in = a0 * (-6.0 * g_rel + 6.0 * g_rel * g_rel) / x_cut
-                f = f_in if g < x_cut else 0.0
-                df = df_in if g < x_cut else 0.0
-                a = gamma + f
-                m = h_nh * g * beta0
-                d = a * a + m
-                d_root = math.sqrt(d)
-                scale = 1.0 / (d_root * d)
-                a_over_k = a * inv_k
-                coef_g = scale * (m * df - a_over_k * h_nh * beta0)
-                coef_gamma = scale * m
-                coef_h = -scale * a_over_k * g * beta0
-                coef_beta0 = -scale * a_over_k * h_nh * g
+                gx, gy, coef_g, sgn_along = own_gradient(s[X, i, b], s[Y, i, b], s[WP_X, i, b], s[WP_Y, i, b],
+                                                         s[COS_D, i, b], s[SIN_D, i, b], g, grad_gx, grad_gy, consts)
                 for j in range(n):
                     ox = gjx_of[i, j, b]
                     oy = gjy_of[i, j, b]
                     gjx_of[i, j, b] = ox * coef_g if near > 0.0 else ox
                     gjy_of[i, j, b] = oy * coef_g if near > 0.0 else oy
-                gx = coef_gamma * 2.0 * dx + coef_h * 2.0 * p_axis * ed_x + coef_beta0 * (-2.0 * xi) + coef_g * grad_gx
-                gy = coef_gamma * 2.0 * dy + coef_h * 2.0 * p_axis * ed_y + coef_beta0 * (-2.0 * yi) + coef_g * grad_gy
                 gix[i, b] = gx
                 giy[i, b] = gy
                 near_of[i, b] = near
-                sgn_along = 1.0 if ed_x * dx + ed_y * dy >= 0.0 else -1.0
                 arg_y[i, b] = sgn_along * gy
                 arg_x[i, b] = sgn_along * gx
             for b in range(b_count):
                 theta_nh_of[i, b] = math.atan2(arg_y[i, b], arg_x[i, b])
             for b in prange(b_count):
-                gx = gix[i, b]
-                gy = giy[i, b]
-                c = cos_h[i, b]
-                sn = sin_h[i, b]
-                p_dir = c * gx + sn * gy
-                dx = (s[X, i, b] - s[WP_X, i, b]) * inv_len
-                dy = (s[Y, i, b] - s[WP_Y, i, b]) * inv_len
-                grad_norm2 = gx * gx + gy * gy
-                f_speed = k_u * grad_norm2 + k_z * (dx * dx + dy * dy)
-                sgn_p = 1.0 if p_dir >= 0.0 else -1.0
-                atan2_nh = theta_nh_of[i, b]
-                theta_d = s[THETA_D, i, b]
-                theta_nh_of[i, b] = atan2_nh if grad_norm2 > grad_floor * grad_floor else theta_d
-                u_fb[i, b] = -sgn_p * f_speed
-                p_of[i, b] = sgn_p * max(abs(p_dir), p_floor)
+                u, p, theta_nh = feedback(gix[i, b], giy[i, b], cos_h[i, b], sin_h[i, b], s[X, i, b], s[Y, i, b],
+                                          s[WP_X, i, b], s[WP_Y, i, b], theta_nh_of[i, b], s[THETA_D, i, b], params)
+                u_fb[i, b] = u
+                p_of[i, b] = p
+                theta_nh_of[i, b] = theta_nh
         # Pass 2 and 3: ∂Φ_i/∂t from the neighbours' feedback airspeeds, the command, the move.
         for i in range(n):
             for b in prange(b_count):
@@ -214,32 +175,18 @@ def fly(s: np.ndarray, wind: np.ndarray, params: np.ndarray, n_steps: int, per_a
                 unusual += 1 if turning | watched | saturated else 0
                 near_steps += 1 if near > 0.0 else 0
                 u = min(max(u, -u_cap), u_cap)
-                heading = s[HEADING, i, b]
                 theta_nh = theta_nh_of[i, b]
-                fresh = s[FRESH, i, b] != 0.0
-                last_sub = s[LAST_SUB, i, b]
-                vx_prev = s[VX_PREV, i, b]
-                vy_prev = s[VY_PREV, i, b]
-                omega_prev = s[OMEGA_PREV, i, b]
-                jump = _wrap(theta_nh - s[THETA_NH, i, b])
-                rate = jump * (max(last_sub, 1.0) * inv_dt)
-                theta_nh_rate = 0.0 if fresh | (abs(jump) > 0.5 * _PI) else rate
-                omega = -k_theta * _wrap(heading - theta_nh) + theta_nh_rate
-                c = cos_h[i, b]
-                sn = sin_h[i, b]
-                vx = u * c + wind[0, b]
-                vy = u * sn + wind[1, b]
-                x0 = s[X, i, b]
-                y0 = s[Y, i, b]
-                ab2 = (s[FRESH, i, b] == 0.0) & (last_sub <= 1.0)
-                x1 = x0 + (1.5 * vx - 0.5 * vx_prev) * nm_per_kt_step if ab2 else x0 + vx * nm_per_kt_step
-                y1 = y0 + (1.5 * vy - 0.5 * vy_prev) * nm_per_kt_step if ab2 else y0 + vy * nm_per_kt_step
-                new_heading = (heading + (1.5 * omega - 0.5 * omega_prev) * dt if ab2 else heading + omega * dt)
+                x1, y1, heading, vx, vy, omega, far = move(
+                    u, cos_h[i, b], sin_h[i, b], wind[0, b], wind[1, b], s[X, i, b], s[Y, i, b], s[HEADING, i, b],
+                    theta_nh, s[THETA_NH, i, b], s[FRESH, i, b], s[LAST_SUB, i, b], s[VX_PREV, i, b],
+                    s[VY_PREV, i, b], s[OMEGA_PREV, i, b], params,
+                )
+                unusual += 1 if far else 0
                 # Positions and headings are written after every aircraft's pass 2: a later
                 # aircraft's pass 2 reads the positions of the step's start.
                 arg_x[i, b] = x1
                 arg_y[i, b] = y1
-                gix[i, b] = _wrap(new_heading)
+                gix[i, b] = heading
                 giy[i, b] = u
                 s[VX_PREV, i, b] = vx
                 s[VY_PREV, i, b] = vy

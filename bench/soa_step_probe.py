@@ -65,6 +65,89 @@ def _wrap(angle: float) -> float:
     return angle if (angle >= -_PI) & (angle < _PI) else near
 
 
+@njit(fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def own_gradient(x: float, y: float, wp_x: float, wp_y: float, ed_x: float, ed_y: float, g: float,
+                 grad_gx: float, grad_gy: float, consts: tuple) -> tuple[float, float, float, float]:
+    """∇_iΦ_i of ``nf.nf_along_direction`` for k = 2 from the aircraft's position, waypoint
+    and θ_d's unit vector (nm), its G_i and ∇_iG_i (in units of L): (gx, gy, coef_g, the sign
+    of the aircraft's side of the dipole axis), its arithmetic operation for operation."""
+    inv_len, _, inv_k, beta0_max, _, _, _, _, eps_nh, a0, x_cut = consts
+    xi = x * inv_len
+    yi = y * inv_len
+    dx = (x - wp_x) * inv_len
+    dy = (y - wp_y) * inv_len
+    gamma = dx * dx + dy * dy
+    p_axis = ed_x * dx + ed_y * dy
+    h_nh = eps_nh + p_axis * p_axis
+    beta0 = beta0_max - (xi * xi + yi * yi)
+    g_rel = g / x_cut
+    f_in = a0 * (1.0 - 3.0 * g_rel * g_rel + 2.0 * g_rel * g_rel * g_rel)
+    df_in = a0 * (-6.0 * g_rel + 6.0 * g_rel * g_rel) / x_cut
+    f = f_in if g < x_cut else 0.0
+    df = df_in if g < x_cut else 0.0
+    a = gamma + f
+    m = h_nh * g * beta0
+    d = a * a + m
+    d_root = math.sqrt(d)
+    scale = 1.0 / (d_root * d)
+    a_over_k = a * inv_k
+    coef_g = scale * (m * df - a_over_k * h_nh * beta0)
+    coef_gamma = scale * m
+    coef_h = -scale * a_over_k * g * beta0
+    coef_beta0 = -scale * a_over_k * h_nh * g
+    gx = coef_gamma * 2.0 * dx + coef_h * 2.0 * p_axis * ed_x + coef_beta0 * (-2.0 * xi) + coef_g * grad_gx
+    gy = coef_gamma * 2.0 * dy + coef_h * 2.0 * p_axis * ed_y + coef_beta0 * (-2.0 * yi) + coef_g * grad_gy
+    sgn_along = 1.0 if ed_x * dx + ed_y * dy >= 0.0 else -1.0
+    return gx, gy, coef_g, sgn_along
+
+
+@njit(fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def feedback(gx: float, gy: float, cos_h: float, sin_h: float, x: float, y: float, wp_x: float, wp_y: float,
+             atan2_nh: float, theta_d: float, params: np.ndarray) -> tuple[float, float, float]:
+    """The kernel's pass 1 after the NF: (−sgn(P_i) F_i kt, P_i floored, θ_nh rad), with θ_d
+    where the gradient has no direction (guard 3)."""
+    inv_len = 1.0 / params[nf.P_LENGTH]
+    grad_floor = params[nf.P_GRAD_FLOOR]
+    p_dir = cos_h * gx + sin_h * gy
+    dx = (x - wp_x) * inv_len
+    dy = (y - wp_y) * inv_len
+    grad_norm2 = gx * gx + gy * gy
+    f_speed = params[nf.P_K_U] * grad_norm2 + params[nf.P_K_Z] * (dx * dx + dy * dy)
+    sgn_p = 1.0 if p_dir >= 0.0 else -1.0
+    theta_nh = atan2_nh if grad_norm2 > grad_floor * grad_floor else theta_d
+    return -sgn_p * f_speed, sgn_p * max(abs(p_dir), params[nf.P_P_FLOOR]), theta_nh
+
+
+@njit(fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def move(u: float, cos_h: float, sin_h: float, wind_x: float, wind_y: float, x0: float, y0: float,
+         heading: float, theta_nh: float, theta_nh_before: float, fresh: float, last_sub: float, vx_prev: float,
+         vy_prev: float, omega_prev: float, params: np.ndarray) -> tuple[float, float, float, float, float, float, bool]:
+    """The kernel's heading law (5b) and move of an ordinary step (AB2, or Euler after a
+    waypoint switch or a refined step), every branch a select: (x1, y1 nm, the wrapped
+    heading rad, vx, vy kt, ω rad/s, whether an angle reached 3π, where ``_wrap`` is not the
+    kernel's)."""
+    dt = params[nf.P_DT]
+    nm_per_kt_step = dt / SECONDS_PER_HOUR
+    jump_raw = theta_nh - theta_nh_before
+    error_raw = heading - theta_nh
+    jump = _wrap(jump_raw)
+    rate = jump * (max(last_sub, 1.0) * (1.0 / dt))
+    theta_nh_rate = 0.0 if (fresh != 0.0) | (abs(jump) > 0.5 * _PI) else rate
+    omega = -params[nf.P_K_THETA] * _wrap(error_raw) + theta_nh_rate
+    vx = u * cos_h + wind_x
+    vy = u * sin_h + wind_y
+    ab2 = (fresh == 0.0) & (last_sub <= 1.0)
+    x_ab2 = x0 + (1.5 * vx - 0.5 * vx_prev) * nm_per_kt_step
+    y_ab2 = y0 + (1.5 * vy - 0.5 * vy_prev) * nm_per_kt_step
+    h_ab2 = heading + (1.5 * omega - 0.5 * omega_prev) * dt
+    x_euler = x0 + vx * nm_per_kt_step
+    y_euler = y0 + vy * nm_per_kt_step
+    h_euler = heading + omega * dt
+    new_heading = h_ab2 if ab2 else h_euler
+    far = max(abs(jump_raw), abs(error_raw), abs(new_heading)) >= 3.0 * _PI
+    return (x_ab2 if ab2 else x_euler), (y_ab2 if ab2 else y_euler), _wrap(new_heading), vx, vy, omega, far
+
+
 # parallel=True for what numba does with a prange loop: it compiles the loop's body into a
 # kernel of its own whose arrays LLVM may assume do not overlap, which lets the loop of the
 # commands and the move vectorize (as a plain loop it does not: LLVM's remark "too many
@@ -76,115 +159,47 @@ def fly(s: np.ndarray, wind: np.ndarray, params: np.ndarray, n_steps: int, scrat
     how many angles reached 3π, where this probe's wrap is not the kernel's (0 expected)."""
     unusual = 0
     consts = nf.nf_constants(params)
-    inv_len, k, inv_k, beta0_max, _, _, _, _, eps_nh, a0, x_cut = consts
-    k_u, k_z, k_theta = params[nf.P_K_U], params[nf.P_K_Z], params[nf.P_K_THETA]
-    u_cap, grad_floor = params[nf.P_U_CAP], params[nf.P_GRAD_FLOOR]
-    dt = params[nf.P_DT]
-    inv_dt = 1.0 / dt
-    nm_per_kt_step = dt / SECONDS_PER_HOUR
+    u_cap, dt = params[nf.P_U_CAP], params[nf.P_DT]
     n, b_count = s.shape[1], s.shape[2]
     cos_h, sin_h, grad_x, grad_y, arg_y, arg_x = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]
-    # G_i = 1 without neighbours, so f_i and f_i' are constants of the call.
-    if 1.0 < x_cut:
-        g_rel = 1.0 / x_cut
-        f = a0 * (1.0 - 3.0 * g_rel * g_rel + 2.0 * g_rel * g_rel * g_rel)
-        df = a0 * (-6.0 * g_rel + 6.0 * g_rel * g_rel) / x_cut
-    else:
-        f = 0.0
-        df = 0.0
     for i in range(n):
         for b in range(b_count):
             cos_h[i, b] = math.cos(s[HEADING, i, b])
             sin_h[i, b] = math.sin(s[HEADING, i, b])
     for _ in range(n_steps):
         for i in range(n):
-            # The NF's gradient without neighbours (nf.nf_along_direction) and θ_nh's arguments.
+            # The NF's gradient without neighbours (G_i = 1, ∇_iG_i = 0) and θ_nh's arguments.
             for b in range(b_count):
-                x = s[X, i, b]
-                y = s[Y, i, b]
-                ed_x = s[COS_D, i, b]
-                ed_y = s[SIN_D, i, b]
-                xi = x * inv_len
-                yi = y * inv_len
-                dx = (x - s[WP_X, i, b]) * inv_len
-                dy = (y - s[WP_Y, i, b]) * inv_len
-                gamma = dx * dx + dy * dy
-                p_axis = ed_x * dx + ed_y * dy
-                h_nh = eps_nh + p_axis * p_axis
-                beta0 = beta0_max - (xi * xi + yi * yi)
-                a = gamma + f
-                m = h_nh * 1.0 * beta0
-                d = a * a + m if k == 2.0 else a**k + m
-                d_root = math.sqrt(d) if k == 2.0 else d**inv_k
-                scale = 1.0 / (d_root * d)
-                a_over_k = a * inv_k
-                coef_g = scale * (m * df - a_over_k * h_nh * beta0)
-                coef_gamma = scale * m
-                coef_h = -scale * a_over_k * 1.0 * beta0
-                coef_beta0 = -scale * a_over_k * h_nh * 1.0
-                gx = coef_gamma * 2.0 * dx + coef_h * 2.0 * p_axis * ed_x + coef_beta0 * (-2.0 * xi) + coef_g * 0.0
-                gy = coef_gamma * 2.0 * dy + coef_h * 2.0 * p_axis * ed_y + coef_beta0 * (-2.0 * yi) + coef_g * 0.0
+                gx, gy, _, sgn_along = own_gradient(s[X, i, b], s[Y, i, b], s[WP_X, i, b], s[WP_Y, i, b],
+                                                    s[COS_D, i, b], s[SIN_D, i, b], 1.0, 0.0, 0.0, consts)
                 grad_x[i, b] = gx
                 grad_y[i, b] = gy
-                sgn_along = 1.0 if ed_x * dx + ed_y * dy >= 0.0 else -1.0
                 arg_y[i, b] = sgn_along * gy
                 arg_x[i, b] = sgn_along * gx
             for b in range(b_count):
                 arg_y[i, b] = math.atan2(arg_y[i, b], arg_x[i, b])  # θ_nh where the gradient has a direction
-            # The commands (5a)-(5b) and the move.
+            # The commands (5a)-(5b) and the move. Every load before any select: a load under a
+            # condition would keep the branch.
             for b in prange(b_count):
-                gx = grad_x[i, b]
-                gy = grad_y[i, b]
-                heading = s[HEADING, i, b]
                 c = cos_h[i, b]
                 sn = sin_h[i, b]
-                p_dir = c * gx + sn * gy
-                dx = (s[X, i, b] - s[WP_X, i, b]) * inv_len
-                dy = (s[Y, i, b] - s[WP_Y, i, b]) * inv_len
-                grad_norm2 = gx * gx + gy * gy
-                f_speed = k_u * grad_norm2 + k_z * (dx * dx + dy * dy)
-                sgn_p = 1.0 if p_dir >= 0.0 else -1.0
-                # Every load before any select: a load under a condition would keep the branch.
-                atan2_nh = arg_y[i, b]
-                theta_d = s[THETA_D, i, b]
-                theta_nh = atan2_nh if grad_norm2 > grad_floor * grad_floor else theta_d
-                fresh = s[FRESH, i, b] != 0.0
-                last_sub = s[LAST_SUB, i, b]
-                vx_prev = s[VX_PREV, i, b]
-                vy_prev = s[VY_PREV, i, b]
-                omega_prev = s[OMEGA_PREV, i, b]
-                jump_raw = theta_nh - s[THETA_NH, i, b]
-                error_raw = heading - theta_nh
-                jump = _wrap(jump_raw)
-                rate = jump * (max(last_sub, 1.0) * inv_dt)
-                theta_nh_rate = 0.0 if fresh | (abs(jump) > 0.5 * _PI) else rate
-                omega = -k_theta * _wrap(error_raw) + theta_nh_rate
-                u = -sgn_p * f_speed
-                u = min(max(u, -u_cap), u_cap)
-                vx = u * c + wind[0, b]
-                vy = u * sn + wind[1, b]
                 x0 = s[X, i, b]
                 y0 = s[Y, i, b]
-                ab2 = (s[FRESH, i, b] == 0.0) & (last_sub <= 1.0)
-                x_ab2 = x0 + (1.5 * vx - 0.5 * vx_prev) * nm_per_kt_step
-                y_ab2 = y0 + (1.5 * vy - 0.5 * vy_prev) * nm_per_kt_step
-                h_ab2 = heading + (1.5 * omega - 0.5 * omega_prev) * dt
-                x_euler = x0 + vx * nm_per_kt_step
-                y_euler = y0 + vy * nm_per_kt_step
-                h_euler = heading + omega * dt
-                x1 = x_ab2 if ab2 else x_euler
-                y1 = y_ab2 if ab2 else y_euler
-                new_heading = h_ab2 if ab2 else h_euler
-                # Angles an ordinary step never makes: the kernel would wrap them with a floor.
-                far = max(abs(jump_raw), abs(error_raw), abs(new_heading))
-                unusual += 1 if far >= 3.0 * _PI else 0
+                u, _, theta_nh = feedback(grad_x[i, b], grad_y[i, b], c, sn, x0, y0, s[WP_X, i, b], s[WP_Y, i, b],
+                                          arg_y[i, b], s[THETA_D, i, b], params)
+                u = min(max(u, -u_cap), u_cap)
+                x1, y1, heading, vx, vy, omega, far = move(
+                    u, c, sn, wind[0, b], wind[1, b], x0, y0, s[HEADING, i, b], theta_nh, s[THETA_NH, i, b],
+                    s[FRESH, i, b], s[LAST_SUB, i, b], s[VX_PREV, i, b], s[VY_PREV, i, b], s[OMEGA_PREV, i, b], params,
+                )
+                unusual += 1 if far else 0
                 s[VX_PREV, i, b] = vx
                 s[VY_PREV, i, b] = vy
                 s[OMEGA_PREV, i, b] = omega
                 s[LAST_SUB, i, b] = 1.0
                 s[X, i, b] = x1
                 s[Y, i, b] = y1
-                s[HEADING, i, b] = _wrap(new_heading)
+                s[HEADING, i, b] = heading
                 s[AIRSPEED, i, b] = u
                 s[THETA_NH, i, b] = theta_nh
                 s[FRESH, i, b] = 0.0
@@ -281,7 +296,9 @@ def main(argv: list[str] | None = None) -> int:
         "leaves out what the kernel also does on every step (the neighbour loop, the envelope's and the "
         "separation's bookkeeping, the arrival and departure tests, the right-hand rule's and the watch's "
         "tests) and its entry checks and `Trace`; those are what a kernel in this layout would add back. "
-        + ("It is the way to the issue's 2× that the per-world kernel does not take." if min(ratios) >= 2.0 else
+        + ("On ordinary steps without neighbours the layout reaches the issue's 2×; whether a kernel in it keeps "
+           "that depends on what the kernel adds back (the neighbours: `bench/soa_dense_probe.py`)."
+           if min(ratios) >= 2.0 else
            "On this evidence the layout does not by itself double the kernel's rate: atan2 and sincos stay "
            "scalar in both, and bound it."),
     ])
