@@ -222,12 +222,7 @@ def main(argv: list[str] | None = None) -> int:
             "the current kernel also flies the right-hand rule at the NF's saddle (guard 9), work "
             "the frozen copy does not do; its proximity gradients evaluate each neighbour's bump once "
             "instead of twice, and it skips the 1/P_i division where that term is exactly zero (both "
-            f"bit for bit); and batches of {current.LANE_MIN_WORLDS} worlds or more take the lane path, "
-            "which flies a world's step, where no pair is within the sensing radius and no guard acts, for "
-            f"chunks of {current.LANE_CHUNK} worlds at once in the lanes of SIMD registers (structure of "
-            "arrays, branches as selects), and the world's other steps by the scalar path, the same "
-            "arithmetic (`tests/test_kernel_lanes.py`; `bench/kernel_trajectory_hash.py` compares builds). "
-            "Every world of this benchmark's period is ordinary. The kernel "
+            "bit for bit). The kernel "
             "keeps only the fast-math flags that cannot change a finite result, so that a world "
             "flies bit for bit the same alone or in a batch of any size. Absolute rates move with "
             "the machine's load; the ratios, measured side by side, are what to compare between runs.",
@@ -237,14 +232,14 @@ def main(argv: list[str] | None = None) -> int:
             f"{floor['libm_ns']:.0f} ns ({floor['libm_ns'] / floor['step_ns']:.0%}) are the three libm "
             "calls the law needs per aircraft and step (atan2 of the gradient for θ_nh, cos and sin of "
             "the heading, the pair fused into one sincos), timed alone on the benchmark flight's own "
-            "headings (and gradient directions near them). The rest is the NF, the commands and the move. "
-            "Halving the step's time with the "
+            "headings (and gradient directions near them). The rest is the NF, the commands and the move: scalar code whose square roots "
+            "and divisions sit in one dependency chain per aircraft. Halving the step's time with the "
             f"libm calls as they are would need that rest to fall to "
             f"{(floor['step_ns'] / 2 - floor['libm_ns']) / (floor['step_ns'] - floor['libm_ns']):.0%} of "
-            "its time. At B = 1000 these are the lane path's steps, whose square roots and divisions are "
-            "packed; atan2 and sincos stay scalar calls (no vector form is bit for bit the scalar one). "
-            "One world (B = 1, the safety filter's prediction) is flown by the scalar path, one "
-            "aircraft after another.",
+            "its time; the way there is to fly several worlds in the "
+            "lanes of one SIMD register, which the per-world loop of this kernel does not do "
+            "(`bench/layout_probe.py` measures the NF's core in that layout, BENCHMARKS.md \"A probe for the "
+            "kernel's layout\"), and libm calls that are bit for bit the same in a vector lane as alone.",
         ]
     )
     print(text)
