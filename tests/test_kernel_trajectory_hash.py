@@ -8,7 +8,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
-from kernel_trajectory_hash import MIX, workload_hash  # noqa: E402
+from kernel_trajectory_hash import MIX, workload_hash
 
 
 def test_hash_repeats_and_tells_flights_apart() -> None:

@@ -33,8 +33,9 @@ def main() -> int:
         scenario = make_scenario(spec, seed=3)
         st0 = initial_state(scenario, 1)
         wp = st0[:, :, K.S_DEST_X : K.S_DEST_Y + 1].copy()
+        free_params = SimConfig().to_params(scenario.workspace_radius_nm)
         for _ in range(t_min // 5):
-            K.advance(st0, wp, np.zeros((1, 2)), 300.0, SimConfig().to_params(scenario.workspace_radius_nm))
+            K.advance(st0, wp, np.zeros((1, 2)), 300.0, free_params)
         b_count, n = 1000, scenario.n_aircraft
         start = np.repeat(st0, b_count, axis=0)
         waypoints = np.repeat(wp, b_count, axis=0) + np.random.default_rng(0).normal(0, 20, (b_count, n, 2))
@@ -44,7 +45,6 @@ def main() -> int:
         grad, command = scratch.get(b_count, n)
         times: dict[str, list[float]] = {"batch": [], "lanes": []}
         finals = {}
-        steps = np.zeros(b_count, np.int64)
         for _ in range(7):
             for name in ("batch", "lanes"):
                 state = start.copy()
