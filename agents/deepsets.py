@@ -13,14 +13,14 @@ neighbours, so a model trained with 2..9 neighbours flies 15 without a new netwo
 With K = 15 slots it sees every other aircraft of a 16-aircraft encounter; beyond K + 1
 aircraft it sees the K nearest.
 
-``numpy_deepsets_forward`` computes the same deterministic action with NumPy (the
-``SB3AgentPolicy`` fast path; ``tests/test_deepsets.py`` checks it against SB3's
-``predict``).
+``agents.compiled_forward.deepsets_actions`` computes the same deterministic action in
+one compiled call (the ``SB3AgentPolicy`` fast path; ``tests/test_agents_any_n.py``
+checks it against SB3's ``predict``).
 """
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -66,47 +66,6 @@ class NeighbourSetExtractor(BaseFeaturesExtractor):
         return torch.cat([own, mean, largest], dim=1)
 
 
-def _layers(sequential: Any) -> list[tuple[np.ndarray, np.ndarray]]:
-    """[(W^T, b)] of an nn.Sequential of Linear + Tanh pairs."""
-    out = []
-    for module in sequential:
-        if isinstance(module, nn.Linear):
-            out.append((np.ascontiguousarray(module.weight.detach().numpy().astype(np.float32).T),
-                        module.bias.detach().numpy().astype(np.float32).copy()))
-        elif not isinstance(module, nn.Tanh):
-            raise TypeError(f"unexpected module {type(module).__name__}")
-    return out
-
-
-def numpy_deepsets_features(extractor: Any) -> Callable[[np.ndarray], np.ndarray]:
-    """obs (B, D) float32 -> the extractor's features (B, 3·hidden), with NumPy."""
-    own_layers = _layers(extractor.own)
-    phi_layers = _layers(extractor.phi)
-    k = extractor.n_slots
-
-    def tanh_mlp(x: np.ndarray, layers: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-        for weight, bias in layers:
-            x = x @ weight
-            x += bias
-            np.tanh(x, out=x)
-        return x
-
-    def features(obs: np.ndarray) -> np.ndarray:
-        b = obs.shape[0]
-        own = tanh_mlp(obs[:, :N_OWN], own_layers)
-        slots = obs[:, N_OWN:].reshape(b, k, N_NEIGHBOUR)
-        mask = slots[:, :, :1]
-        encoded = tanh_mlp(slots[:, :, 1:].reshape(b * k, N_NEIGHBOUR - 1), phi_layers).reshape(b, k, -1)
-        encoded *= mask
-        count = mask.sum(axis=1)
-        mean = encoded.sum(axis=1) / np.maximum(count, 1.0)
-        largest = np.where(mask > 0, encoded, np.float32(-2.0)).max(axis=1)
-        largest = np.where(count > 0, largest, np.float32(0.0))
-        return np.concatenate([own, mean, largest], axis=1).astype(np.float32, copy=False)
-
-    return features
-
-
 def policy_kwargs(hidden: int, net_arch: list[int], log_std_init: float) -> dict[str, Any]:
     """PPO ``policy_kwargs`` of a deep-sets actor-critic (actor and critic share the extractor)."""
     return {"features_extractor_class": NeighbourSetExtractor,
@@ -114,4 +73,4 @@ def policy_kwargs(hidden: int, net_arch: list[int], log_std_init: float) -> dict
             "net_arch": {"pi": net_arch, "vf": net_arch}, "log_std_init": log_std_init}
 
 
-__all__ = ["NeighbourSetExtractor", "numpy_deepsets_features", "policy_kwargs"]
+__all__ = ["NeighbourSetExtractor", "policy_kwargs"]

@@ -15,13 +15,16 @@ alone (``atc-nf evaluate --policy agents/models/x.zip``). At every decision it
    (``atc_nf_env.envs.actions.waypoints_for_state``, the function the envs call).
 
 Decision latency. SB3's ``predict`` costs ~100 µs of Python and torch overhead per
-call, more than the network itself. For the MLP policies our scripts train (PPO's
-``ActorCriticPolicy``, SAC's ``Actor``) the deterministic action is computed here with
-an explicit NumPy forward pass whose weights are read from the SB3 policy: PPO's action
-is the Gaussian's mean ``action_net(policy_net(obs))`` clipped to [-1, 1] (what
-``predict(deterministic=True)`` returns); SAC's is ``tanh(mu(latent_pi(obs)))``.
-``tests/test_agents.py`` checks both against SB3's ``predict``. Any other policy
-architecture falls back to ``predict`` (``fast=False`` forces it).
+call, more than the network itself. For the policies our scripts train (PPO's
+``ActorCriticPolicy`` with an MLP or the deep-sets extractor of ``agents.deepsets``,
+SAC's ``Actor``) the deterministic action is computed here in one compiled call
+(``agents.compiled_forward``) from the weights of the SB3 policy: PPO's action is the
+Gaussian's mean ``action_net(policy_net(features(obs)))`` clipped to [-1, 1] (what
+``predict(deterministic=True)`` returns); SAC's is ``tanh(mu(latent_pi(obs)))``. It agrees
+with ``predict`` to float32 rounding (~1e-6), not bit for bit: neither torch nor BLAS
+fixes the order of a sum. ``tests/test_agents.py`` and ``tests/test_agents_any_n.py``
+check it against SB3's ``predict``. Any other policy architecture falls back to
+``predict`` (``fast=False`` forces it).
 
 Model metadata. Our scripts save, inside the model's zip (SB3's ``include``), an
 ``atc_nf_meta`` dict: the algorithm, the mode, and the environment settings the model
@@ -38,6 +41,17 @@ from typing import Any, Callable
 
 import numpy as np
 
+from agents.compiled_forward import (
+    CLIP,
+    IDENTITY,
+    RELU,
+    SQUASH,
+    TANH,
+    deepsets_actions,
+    mlp_actions,
+    pack_layers,
+    widest,
+)
 from atc_nf_env.config import SimConfig
 from atc_nf_env.envs import EnvConfig
 from atc_nf_env.envs.actions import ActionMapping, waypoints_for_state
@@ -133,41 +147,45 @@ def _load_model(path: Path) -> tuple[Any, dict[str, Any]]:
     return model, meta
 
 
-# ------------------------------------------------------------------ NumPy forward pass
+# ------------------------------------------------------------------ compiled forward pass
 
 
-def _activation(module: Any) -> Callable[[np.ndarray], np.ndarray]:
+def _activation(module: Any) -> int:
     import torch.nn as nn
 
     if isinstance(module, nn.Tanh):
-        return lambda x: np.tanh(x, out=x)
+        return TANH
     if isinstance(module, nn.ReLU):
-        return lambda x: np.maximum(x, 0.0, out=x)
-    raise TypeError(f"activation {type(module).__name__} has no NumPy form here")
+        return RELU
+    raise TypeError(f"activation {type(module).__name__} has no compiled form here")
 
 
-def _mlp_layers(sequential: Any) -> list[tuple[np.ndarray, np.ndarray, Callable | None]]:
-    """[(W^T, b, activation or None)] of an nn.Sequential of Linear and activation modules."""
+def _mlp_layers(sequential: Any) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """[(W^T, b, activation code)] of an nn.Sequential of Linear and activation modules."""
     import torch.nn as nn
 
-    layers: list[tuple[np.ndarray, np.ndarray, Callable | None]] = []
+    layers: list[tuple[np.ndarray, np.ndarray, int]] = []
+    activated = True  # an activation needs a Linear layer before it that has none yet
     for module in sequential:
         if isinstance(module, nn.Linear):
             weight = np.ascontiguousarray(module.weight.detach().cpu().numpy().astype(np.float32).T)
             bias = module.bias.detach().cpu().numpy().astype(np.float32).copy()
-            layers.append((weight, bias, None))
+            layers.append((weight, bias, IDENTITY))
+            activated = False
         else:
-            if not layers or layers[-1][2] is not None:
+            if activated:
                 raise TypeError(f"unexpected module {type(module).__name__} in the policy network")
             weight, bias, _ = layers[-1]
             layers[-1] = (weight, bias, _activation(module))
+            activated = True
     return layers
 
 
-def numpy_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
-    """A function obs (B, D) -> deterministic actions (B, A) in [-1, 1] that reproduces
-    ``model.predict(obs, deterministic=True)`` with NumPy, or None if the model's policy is
-    not one of the MLP policies handled here."""
+def compiled_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
+    """A function obs (B, D) -> deterministic actions (B, A) float32 in [-1, 1] that
+    computes ``model.predict(obs, deterministic=True)`` in one compiled call
+    (``agents.compiled_forward``; equal to float32 rounding), or None if the model's policy
+    is not one of the architectures handled here."""
     from stable_baselines3.common.torch_layers import FlattenExtractor
 
     try:
@@ -175,12 +193,12 @@ def numpy_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
         from stable_baselines3.sac.policies import SACPolicy
 
         policy = model.policy
-        features: Callable[[np.ndarray], np.ndarray] | None = None
+        extractor: Any = None
         if isinstance(policy, ActorCriticPolicy):
-            from agents.deepsets import NeighbourSetExtractor, numpy_deepsets_features
+            from agents.deepsets import NeighbourSetExtractor
 
             if isinstance(policy.features_extractor, NeighbourSetExtractor) and policy.share_features_extractor:
-                features = numpy_deepsets_features(policy.features_extractor)
+                extractor = policy.features_extractor
             elif not isinstance(policy.features_extractor, FlattenExtractor):
                 return None
             if policy.squash_output:
@@ -189,14 +207,14 @@ def numpy_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
 
             if not isinstance(policy.action_dist, DiagGaussianDistribution):
                 return None
-            layers = _mlp_layers(policy.mlp_extractor.policy_net) + _mlp_layers([policy.action_net])
-            squash = False
+            head = _mlp_layers(policy.mlp_extractor.policy_net) + _mlp_layers([policy.action_net])
+            output = CLIP
         elif isinstance(policy, SACPolicy):
             actor = policy.actor
             if not isinstance(actor.features_extractor, FlattenExtractor) or actor.use_sde:
                 return None
-            layers = _mlp_layers(actor.latent_pi) + _mlp_layers([actor.mu])
-            squash = True
+            head = _mlp_layers(actor.latent_pi) + _mlp_layers([actor.mu])
+            output = SQUASH
         else:
             return None
     except TypeError:
@@ -205,23 +223,44 @@ def numpy_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
     high = model.action_space.high.reshape(-1).astype(np.float64)
     if not (np.all(low == -1.0) and np.all(high == 1.0)):
         return None  # our envs' actions are all in [-1, 1]; anything else goes through predict
+    head_weights, head_layout = pack_layers(head)
+    n_actions = int(head_layout[-1, 1])
+    obs_dim = int(np.prod(model.observation_space.shape))
+    if extractor is None:
+        buf_a, buf_b = (np.zeros(widest(head_layout), dtype=np.float32) for _ in range(2))
+
+        def forward(obs: np.ndarray) -> np.ndarray:
+            x = _observations(obs, obs_dim)
+            out = np.empty((x.shape[0], n_actions), dtype=np.float32)
+            mlp_actions(x, head_weights, head_layout, output, buf_a, buf_b, out)
+            return out
+
+        return forward
+    from agents.deepsets import N_NEIGHBOUR, N_OWN
+
+    own_weights, own_layout = pack_layers(_mlp_layers(extractor.own))
+    phi_weights, phi_layout = pack_layers(_mlp_layers(extractor.phi))
+    width = max(widest(own_layout), widest(phi_layout), widest(head_layout))
+    buf_a, buf_b = (np.zeros(width, dtype=np.float32) for _ in range(2))
+    features = np.zeros(3 * extractor.hidden, dtype=np.float32)
+    n_slots = int(extractor.n_slots)
 
     def forward(obs: np.ndarray) -> np.ndarray:
-        # float32 like torch; in-place operations keep the per-decision cost at a few µs.
-        x = np.asarray(obs, dtype=np.float32)
-        if features is not None:
-            x = features(x)
-        for weight, bias, act in layers:
-            x = x @ weight
-            x += bias
-            if act is not None:
-                act(x)
-        if squash:
-            return np.tanh(x, out=x)
-        np.minimum(x, 1.0, out=x)
-        return np.maximum(x, -1.0, out=x)
+        x = _observations(obs, obs_dim)
+        out = np.empty((x.shape[0], n_actions), dtype=np.float32)
+        deepsets_actions(x, N_OWN, n_slots, N_NEIGHBOUR, own_weights, own_layout, phi_weights, phi_layout,
+                         head_weights, head_layout, output, buf_a, buf_b, features, out)
+        return out
 
     return forward
+
+
+def _observations(obs: np.ndarray, obs_dim: int) -> np.ndarray:
+    """``obs`` as the compiled forward pass reads it: C-contiguous float32 (B, obs_dim)."""
+    x = np.ascontiguousarray(obs, dtype=np.float32)
+    if x.ndim != 2 or x.shape[1] != obs_dim:
+        raise ValueError(f"observations of shape {np.shape(obs)}; expected (B, {obs_dim})")
+    return x
 
 
 # ------------------------------------------------------------------ the policy
@@ -257,7 +296,7 @@ class SB3AgentPolicy:
 
     Args:
         path: the model's .zip.
-        fast: use the NumPy forward pass where the architecture allows (see the module
+        fast: use the compiled forward pass where the architecture allows (see the module
             docstring); False always calls SB3's ``predict(deterministic=True)``.
         outside_range: "warn" (once per model and process), "refuse" (ValueError) or
             "ignore", when an episode's number of aircraft or wind sigma lies outside the
@@ -301,7 +340,7 @@ class SB3AgentPolicy:
             if obs_dim != slots * per_aircraft:
                 raise ValueError(f"{self.path}: observation size {obs_dim} is not {slots} slots x {per_aircraft}")
             self.n_slots = int(slots)
-        self._forward = numpy_forward(self.model) if fast else None
+        self._forward = compiled_forward(self.model) if fast else None
         self._spec: ObservationSpec | None = None
         self._warm = False
 
@@ -384,6 +423,6 @@ def is_model_path(spec: str) -> bool:
     return isinstance(spec, str) and spec.lower().endswith(".zip")
 
 
-__all__ = ["META_KEY", "OutsideOperatingRangeWarning", "SB3AgentPolicy", "default_meta", "env_meta", "is_model_path", "load_model", "numpy_forward",
+__all__ = ["META_KEY", "OutsideOperatingRangeWarning", "SB3AgentPolicy", "default_meta", "env_meta", "is_model_path", "load_model", "compiled_forward",
            "read_meta"]
 

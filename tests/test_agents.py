@@ -1,5 +1,5 @@
 """The Stable-Baselines3 agents: tiny runs of `atc-nf train` and `atc-nf imitate`, behaviour
-cloning, the agent policy (observations, actions, NumPy forward pass), the shipped models."""
+cloning, the agent policy (observations, actions, compiled forward pass), the shipped models."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ pytest.importorskip("supersuit")
 
 import atc_nf_env  # noqa: E402
 from agents import imitate  # noqa: E402
-from agents.policy import SB3AgentPolicy, numpy_forward, read_meta  # noqa: E402
+from agents.policy import SB3AgentPolicy, compiled_forward, read_meta  # noqa: E402
 from atc_nf_env import cli  # noqa: E402
 from atc_nf_env.config import SimConfig  # noqa: E402
 from atc_nf_env.envs.actions import waypoint_to_action  # noqa: E402
@@ -193,11 +193,11 @@ def test_agent_observations_and_waypoints_are_the_envs(tiny_model: Path) -> None
     np.testing.assert_allclose(result.waypoints, np.stack(waypoints_env), atol=1e-3)
 
 
-def test_numpy_forward_equals_sb3_predict(tiny_model: Path) -> None:
+def test_compiled_forward_equals_sb3_predict(tiny_model: Path) -> None:
     policy = SB3AgentPolicy(tiny_model)
     obs = np.random.default_rng(1).uniform(-3, 3, (64, ObservationSpec().dim)).astype(np.float32)
     predicted, _ = policy.model.predict(obs, deterministic=True)
-    np.testing.assert_allclose(numpy_forward(policy.model)(obs), predicted, atol=1e-5)
+    np.testing.assert_allclose(compiled_forward(policy.model)(obs), predicted, atol=1e-5)
     slow = SB3AgentPolicy(tiny_model, fast=False)
     assert slow._forward is None
     np.testing.assert_allclose(slow.actions(obs), predicted, atol=1e-6)

@@ -13,7 +13,7 @@ pytest.importorskip("stable_baselines3")
 
 from agents import cards, imitate  # noqa: E402
 from agents.deepsets import N_NEIGHBOUR, N_OWN, NeighbourSetExtractor  # noqa: E402
-from agents.policy import OutsideOperatingRangeWarning, SB3AgentPolicy, env_meta, numpy_forward  # noqa: E402
+from agents.policy import OutsideOperatingRangeWarning, SB3AgentPolicy, compiled_forward, env_meta  # noqa: E402
 from agents.train import CURVE_HEADER, save_model  # noqa: E402
 from atc_nf_env.envs import EnvConfig  # noqa: E402
 from atc_nf_env.episode import run_episode  # noqa: E402
@@ -59,8 +59,8 @@ def test_deepsets_actions_ignore_the_order_of_neighbours(deepsets_model) -> None
     assert np.abs(changed[has] - action[has]).max() > 1e-4
 
 
-def test_deepsets_numpy_forward_equals_sb3_predict(deepsets_model) -> None:
-    forward = numpy_forward(deepsets_model)
+def test_deepsets_compiled_forward_equals_sb3_predict(deepsets_model) -> None:
+    forward = compiled_forward(deepsets_model)
     assert forward is not None
     obs = random_observations(50, K, seed=2)
     expected, _ = deepsets_model.predict(obs, deterministic=True)

@@ -1,0 +1,133 @@
+"""The compiled forward pass of the agents (``agents.compiled_forward``): its tanh, its dense
+layers against a plain float64 reference, a row alone against the same row in a batch,
+the packing's refusals, and the shipped models against SB3's ``predict``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agents.compiled_forward import (
+    CLIP,
+    IDENTITY,
+    RELU,
+    SQUASH,
+    TANH,
+    mlp_actions,
+    pack_layers,
+    tanh32,
+    widest,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_mlp(layers, obs: np.ndarray, output: int = CLIP) -> np.ndarray:
+    weights, layout = pack_layers(layers)
+    buffers = [np.zeros(widest(layout), dtype=np.float32) for _ in range(2)]
+    out = np.empty((obs.shape[0], layout[-1, 1]), dtype=np.float32)
+    mlp_actions(np.ascontiguousarray(obs, dtype=np.float32), weights, layout, output, *buffers, out)
+    return out
+
+
+def random_layers(rng: np.random.Generator, sizes: list[int], activations: list[int]):
+    return [
+        (rng.normal(0, 0.4, (d_in, d_out)).astype(np.float32), rng.normal(0, 0.2, d_out).astype(np.float32), act)
+        for d_in, d_out, act in zip(sizes[:-1], sizes[1:], activations)
+    ]
+
+
+def reference(layers, obs: np.ndarray, output: int) -> np.ndarray:
+    x = obs.astype(np.float64)
+    for weight, bias, act in layers:
+        x = x @ weight.astype(np.float64) + bias
+        x = np.tanh(x) if act == TANH else np.maximum(x, 0.0) if act == RELU else x
+    return np.tanh(x) if output == SQUASH else np.clip(x, -1.0, 1.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, width=32))
+def test_tanh32_is_within_three_float32_ulps(x: float) -> None:
+    value = np.float32(x)
+    exact = np.tanh(np.float64(value))
+    got = float(tanh32(value))
+    assert abs(got - exact) <= 3 * np.spacing(np.float32(abs(exact))) + 1e-45
+    assert -1.0 <= got <= 1.0
+
+
+def test_tanh32_on_a_dense_grid_and_its_symmetry() -> None:
+    x = np.linspace(-12.0, 12.0, 200_001).astype(np.float32)
+    got = np.array([tanh32(v) for v in x[::97]], dtype=np.float64)
+    exact = np.tanh(x[::97].astype(np.float64))
+    assert np.abs(got - exact).max() < 3e-7
+    assert all(tanh32(np.float32(v)) == -tanh32(np.float32(-v)) for v in (0.25, 1.5, 4.0, 9.0))
+    assert tanh32(np.float32(0.0)) == 0.0
+
+
+@pytest.mark.parametrize("sizes,activations,output", [
+    ([28, 64, 64, 2], [TANH, TANH, IDENTITY], CLIP),
+    ([7, 5, 3, 9, 2], [RELU, TANH, RELU, IDENTITY], SQUASH),
+    ([3, 2], [IDENTITY], CLIP),
+])
+def test_mlp_matches_a_float64_reference(sizes, activations, output) -> None:
+    rng = np.random.default_rng(sum(sizes))
+    layers = random_layers(rng, sizes, activations)
+    obs = rng.normal(0, 2, (40, sizes[0])).astype(np.float32)
+    np.testing.assert_allclose(run_mlp(layers, obs, output), reference(layers, obs, output), atol=2e-5)
+
+
+def test_a_row_alone_gives_the_same_bits_as_in_any_batch() -> None:
+    rng = np.random.default_rng(3)
+    layers = random_layers(rng, [28, 64, 64, 2], [TANH, TANH, IDENTITY])
+    obs = rng.normal(0, 2, (33, 28)).astype(np.float32)
+    batch = run_mlp(layers, obs)
+    alone = np.concatenate([run_mlp(layers, obs[i : i + 1]) for i in range(len(obs))])
+    assert np.array_equal(batch, alone)
+    assert np.array_equal(run_mlp(layers, obs[::-1])[::-1], batch)
+
+
+def test_packing_refuses_layers_that_do_not_chain() -> None:
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="at least one layer"):
+        pack_layers([])
+    with pytest.raises(ValueError, match="inputs after one of"):
+        pack_layers(random_layers(rng, [4, 5], [TANH]) + random_layers(rng, [6, 2], [IDENTITY]))
+    with pytest.raises(ValueError, match="bias of shape"):
+        pack_layers([(np.zeros((3, 2), np.float32), np.zeros(3, np.float32), IDENTITY)])
+    with pytest.raises(ValueError, match="activation"):
+        pack_layers([(np.zeros((3, 2), np.float32), np.zeros(2, np.float32), 7)])
+
+
+def test_the_policy_refuses_observations_of_the_wrong_size() -> None:
+    pytest.importorskip("stable_baselines3")
+    from agents.policy import SB3AgentPolicy
+
+    policy = SB3AgentPolicy(ROOT / "agents" / "models" / "finetuned_ppo.zip")
+    dim = int(np.prod(policy.model.observation_space.shape))
+    with pytest.raises(ValueError, match=rf"expected \(B, {dim}\)"):
+        policy.actions(np.zeros((2, dim + 1), dtype=np.float32))
+
+
+@pytest.mark.parametrize("model", sorted(p.name for p in (ROOT / "agents" / "models").glob("*.zip")))
+def test_shipped_models_agree_with_sb3_predict(model: str) -> None:
+    pytest.importorskip("stable_baselines3")
+    from agents.deepsets import N_NEIGHBOUR, N_OWN
+    from agents.policy import SB3AgentPolicy
+
+    policy = SB3AgentPolicy(ROOT / "agents" / "models" / model)
+    assert policy._forward is not None, "every shipped model has a compiled forward pass"
+    dim = int(np.prod(policy.model.observation_space.shape))
+    rng = np.random.default_rng(5)
+    obs = rng.uniform(-2, 2, (64, dim)).astype(np.float32)
+    if model.startswith("deepsets"):
+        for slot in range((dim - N_OWN) // N_NEIGHBOUR):
+            present = rng.uniform(size=64) < 0.5
+            base = N_OWN + slot * N_NEIGHBOUR
+            obs[:, base] = present
+            obs[~present, base : base + N_NEIGHBOUR] = 0.0
+    expected, _ = policy.model.predict(obs, deterministic=True)
+    np.testing.assert_allclose(policy.actions(obs), expected, atol=1e-5)
