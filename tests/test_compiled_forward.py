@@ -131,3 +131,22 @@ def test_shipped_models_agree_with_sb3_predict(model: str) -> None:
             obs[~present, base : base + N_NEIGHBOUR] = 0.0
     expected, _ = policy.model.predict(obs, deterministic=True)
     np.testing.assert_allclose(policy.actions(obs), expected, atol=1e-5)
+
+
+@pytest.mark.parametrize("model", ["finetuned_ppo.zip", "deepsets_mixed.zip"])
+def test_the_benchs_numpy_yardstick_computes_the_same_actions(model: str) -> None:
+    """``bench/bench_agent_forward.py`` times the compiled pass against a NumPy pass: both
+    must compute the same function for the ratio to mean anything."""
+    pytest.importorskip("stable_baselines3")
+    import sys
+
+    from agents.policy import SB3AgentPolicy
+
+    sys.path.insert(0, str(ROOT / "bench"))
+    from bench_agent_forward import numpy_actions
+
+    policy = SB3AgentPolicy(ROOT / "agents" / "models" / model)
+    dim = int(np.prod(policy.model.observation_space.shape))
+    obs = np.random.default_rng(8).uniform(-2, 2, (40, dim)).astype(np.float32)
+    obs[:, 8::5] = obs[:, 8::5] > 0  # slot masks of the deep-sets layout (own features: 8)
+    np.testing.assert_allclose(numpy_actions(policy.model)(obs), policy.actions(obs), atol=1e-5)
