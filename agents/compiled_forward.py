@@ -156,14 +156,29 @@ def _finish(row: np.ndarray, n: int, output: int, out: np.ndarray) -> None:
 
 
 @njit(cache=True, error_model="numpy")
+def _all_finite(obs: np.ndarray) -> bool:
+    """Whether every value of ``obs`` is finite (the compiled tanh clamps its argument, so
+    a NaN would otherwise come out as a valid action)."""
+    for b in range(obs.shape[0]):
+        for k in range(obs.shape[1]):
+            if not abs(obs[b, k]) < np.inf:
+                return False
+    return True
+
+
+@njit(cache=True, error_model="numpy")
 def mlp_actions(obs: np.ndarray, weights: np.ndarray, layout: np.ndarray, output: int,
-                buf_a: np.ndarray, buf_b: np.ndarray, out: np.ndarray) -> None:
+                buf_a: np.ndarray, buf_b: np.ndarray, out: np.ndarray) -> bool:
     """Deterministic actions ``out`` (B, A) in [-1, 1] of a packed MLP on ``obs`` (B, D) float32;
-    ``buf_a``, ``buf_b``: float32 scratch of ``widest(layout)``."""
+    ``buf_a``, ``buf_b``: float32 scratch of ``widest(layout)``. Returns False, computing
+    nothing, if ``obs`` holds a NaN or inf."""
+    if not _all_finite(obs):
+        return False
     n_out = layout[layout.shape[0] - 1, 1]
     for b in range(obs.shape[0]):
         row = _mlp_row(obs[b], weights, layout, buf_a, buf_b)
         _finish(row, n_out, output, out[b])
+    return True
 
 
 @njit(cache=True, error_model="numpy")
@@ -183,12 +198,15 @@ def deepsets_actions(
     buf_b: np.ndarray,
     features: np.ndarray,
     out: np.ndarray,
-) -> None:
+) -> bool:
     """Deterministic actions ``out`` (B, A) of a deep-sets policy (``agents.deepsets``): the
     features [own encoder(obs[:n_own]), masked mean and masked max of φ over the present
     neighbour slots (slot value 0 is the mask, 1.0 where a neighbour is present)] and the
     head (the policy MLP and the action layer) on them. ``features``: float32 scratch of
-    3·hidden; ``buf_a``, ``buf_b``: of the widest layer of the three networks."""
+    3·hidden; ``buf_a``, ``buf_b``: of the widest layer of the three networks. Returns False,
+    computing nothing, if ``obs`` holds a NaN or inf."""
+    if not _all_finite(obs):
+        return False
     hidden = own_layout[own_layout.shape[0] - 1, 1]
     n_out = head_layout[head_layout.shape[0] - 1, 1]
     for b in range(obs.shape[0]):
@@ -215,6 +233,7 @@ def deepsets_actions(
                 features[2 * hidden + j] = np.float32(0.0)
         head = _mlp_row(features, head_weights, head_layout, buf_a, buf_b)
         _finish(head, n_out, output, out[b])
+    return True
 
 
 __all__ = ["CLIP", "IDENTITY", "RELU", "SQUASH", "TANH", "deepsets_actions", "mlp_actions", "pack_layers", "tanh32",

@@ -232,7 +232,8 @@ def compiled_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
         def forward(obs: np.ndarray) -> np.ndarray:
             x = _observations(obs, obs_dim)
             out = np.empty((x.shape[0], n_actions), dtype=np.float32)
-            mlp_actions(x, head_weights, head_layout, output, buf_a, buf_b, out)
+            if not mlp_actions(x, head_weights, head_layout, output, buf_a, buf_b, out):
+                raise _not_finite()
             return out
 
         return forward
@@ -248,8 +249,9 @@ def compiled_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
     def forward(obs: np.ndarray) -> np.ndarray:
         x = _observations(obs, obs_dim)
         out = np.empty((x.shape[0], n_actions), dtype=np.float32)
-        deepsets_actions(x, N_OWN, n_slots, N_NEIGHBOUR, own_weights, own_layout, phi_weights, phi_layout,
-                         head_weights, head_layout, output, buf_a, buf_b, features, out)
+        if not deepsets_actions(x, N_OWN, n_slots, N_NEIGHBOUR, own_weights, own_layout, phi_weights, phi_layout,
+                                head_weights, head_layout, output, buf_a, buf_b, features, out):
+            raise _not_finite()
         return out
 
     return forward
@@ -261,6 +263,10 @@ def _observations(obs: np.ndarray, obs_dim: int) -> np.ndarray:
     if x.ndim != 2 or x.shape[1] != obs_dim:
         raise ValueError(f"observations of shape {np.shape(obs)}; expected (B, {obs_dim})")
     return x
+
+
+def _not_finite() -> ValueError:
+    return ValueError("observations contain NaN or inf (after conversion to float32); all must be finite")
 
 
 # ------------------------------------------------------------------ the policy

@@ -30,7 +30,7 @@ def run_mlp(layers, obs: np.ndarray, output: int = CLIP) -> np.ndarray:
     weights, layout = pack_layers(layers)
     buffers = [np.zeros(widest(layout), dtype=np.float32) for _ in range(2)]
     out = np.empty((obs.shape[0], layout[-1, 1]), dtype=np.float32)
-    mlp_actions(np.ascontiguousarray(obs, dtype=np.float32), weights, layout, output, *buffers, out)
+    assert mlp_actions(np.ascontiguousarray(obs, dtype=np.float32), weights, layout, output, *buffers, out)
     return out
 
 
@@ -102,7 +102,7 @@ def test_packing_refuses_layers_that_do_not_chain() -> None:
         pack_layers([(np.zeros((3, 2), np.float32), np.zeros(2, np.float32), 7)])
 
 
-def test_the_policy_refuses_observations_of_the_wrong_size() -> None:
+def test_the_policy_refuses_observations_of_the_wrong_size_or_not_finite() -> None:
     pytest.importorskip("stable_baselines3")
     from agents.policy import SB3AgentPolicy
 
@@ -110,6 +110,24 @@ def test_the_policy_refuses_observations_of_the_wrong_size() -> None:
     dim = int(np.prod(policy.model.observation_space.shape))
     with pytest.raises(ValueError, match=rf"expected \(B, {dim}\)"):
         policy.actions(np.zeros((2, dim + 1), dtype=np.float32))
+    for bad in (np.nan, np.inf, 1e39):  # 1e39 overflows float32 to inf
+        obs = np.zeros((3, dim))
+        obs[1, 2] = bad
+        with pytest.raises(ValueError, match="NaN or inf"), np.errstate(over="ignore"):
+            policy.actions(obs)
+
+
+@pytest.mark.parametrize("model", ["finetuned_ppo.zip", "deepsets_mixed.zip"])
+def test_both_architectures_refuse_observations_that_are_not_finite(model: str) -> None:
+    pytest.importorskip("stable_baselines3")
+    from agents.policy import SB3AgentPolicy
+
+    policy = SB3AgentPolicy(ROOT / "agents" / "models" / model)
+    dim = int(np.prod(policy.model.observation_space.shape))
+    obs = np.zeros((4, dim), dtype=np.float32)
+    obs[3, dim - 1] = np.nan  # the last row's last value: checked before anything is computed
+    with pytest.raises(ValueError, match="NaN or inf"):
+        policy.actions(obs)
 
 
 @pytest.mark.parametrize("model", sorted(p.name for p in (ROOT / "agents" / "models").glob("*.zip")))
