@@ -131,7 +131,9 @@ def _dense_row(x: np.ndarray, weights: np.ndarray, d_in: int, d_out: int, w_offs
 
 
 @njit(cache=True, error_model="numpy")
-def _mlp_row(x: np.ndarray, weights: np.ndarray, layout: np.ndarray, buf_a: np.ndarray, buf_b: np.ndarray) -> np.ndarray:
+def _mlp_row(
+    x: np.ndarray, weights: np.ndarray, layout: np.ndarray, buf_a: np.ndarray, buf_b: np.ndarray
+) -> np.ndarray:
     """The packed network on one input row; returns the buffer that holds its output."""
     d_in, d_out, w_offset, b_offset, activation = layout[0]
     _dense_row(x, weights, d_in, d_out, w_offset, b_offset, activation, buf_a)
@@ -236,5 +238,5 @@ def deepsets_actions(
     return True
 
 
-__all__ = ["CLIP", "IDENTITY", "RELU", "SQUASH", "TANH", "deepsets_actions", "mlp_actions", "pack_layers", "tanh32",
-           "widest"]
+__all__ = ["CLIP", "IDENTITY", "RELU", "SQUASH", "TANH", "deepsets_actions", "mlp_actions", "pack_layers",
+           "tanh32", "widest"]

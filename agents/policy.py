@@ -249,8 +249,8 @@ def compiled_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
     def forward(obs: np.ndarray) -> np.ndarray:
         x = _observations(obs, obs_dim)
         out = np.empty((x.shape[0], n_actions), dtype=np.float32)
-        if not deepsets_actions(x, N_OWN, n_slots, N_NEIGHBOUR, own_weights, own_layout, phi_weights, phi_layout,
-                                head_weights, head_layout, output, buf_a, buf_b, features, out):
+        if not deepsets_actions(x, N_OWN, n_slots, N_NEIGHBOUR, own_weights, own_layout, phi_weights,
+                                phi_layout, head_weights, head_layout, output, buf_a, buf_b, features, out):
             raise _not_finite()
         return out
 

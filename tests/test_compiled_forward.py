@@ -36,7 +36,8 @@ def run_mlp(layers, obs: np.ndarray, output: int = CLIP) -> np.ndarray:
 
 def random_layers(rng: np.random.Generator, sizes: list[int], activations: list[int]):
     return [
-        (rng.normal(0, 0.4, (d_in, d_out)).astype(np.float32), rng.normal(0, 0.2, d_out).astype(np.float32), act)
+        (rng.normal(0, 0.4, (d_in, d_out)).astype(np.float32), rng.normal(0, 0.2, d_out).astype(np.float32),
+         act)
         for d_in, d_out, act in zip(sizes[:-1], sizes[1:], activations)
     ]
 
