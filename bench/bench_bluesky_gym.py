@@ -56,6 +56,15 @@ def theirs(python: str, seconds: float) -> float:
     return float(out.stdout.strip().splitlines()[-1])
 
 
+def their_version(python: str) -> str:
+    """The bluesky-gym and bluesky-simulator versions of ``python``'s environment."""
+    code = ("from importlib.metadata import version; "
+            "print(version('bluesky-gym'), version('bluesky-simulator'))")
+    out = subprocess.run([python, "-c", code], check=True, capture_output=True, text=True)
+    gym_version, simulator_version = out.stdout.split()
+    return f"bluesky-gym {gym_version}, bluesky-simulator {simulator_version}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--bluesky-python", required=True, help="Python of a venv with bluesky-gym")
@@ -74,7 +83,8 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"`python bench/bench_bluesky_gym.py` — random actions, {args.seconds:g} s per round, three "
         f"alternating rounds, {machine()}. One step of ours is one 5-min decision of 4 aircraft "
-        "(`parallel_env`, converging-4); one step of BlueSky-Gym's `SectorCREnv-v0` is its own decision step.",
+        "(`parallel_env`, converging-4); one step of BlueSky-Gym's `SectorCREnv-v0` is its own decision step "
+        f"({their_version(args.bluesky_python)}, in its own virtual environment).",
         "",
         "| env | steps / s (median) |",
         "|---|---:|",
