@@ -23,3 +23,12 @@ def machine() -> str:
 def write_section(name: str, text: str) -> None:
     """Replace the section delimited by markers named ``name`` (or append it)."""
     write_marked_section(BENCHMARKS, name, text, header=HEADER)
+
+
+def publish(name: str, text: str, write: bool) -> int:
+    """Print a benchmark's section and, with ``write`` (its ``--write``), put it into
+    BENCHMARKS.md; the script's exit status (0)."""
+    print(text)
+    if write:
+        write_section(name, text)
+    return 0

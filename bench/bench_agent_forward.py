@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _report import machine, write_section  # bench/ is on sys.path when run as a script
+from _report import machine, publish  # bench/ is on sys.path when run as a script
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -203,10 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         "",
         *rows,
     ])
-    print(text)
-    if args.write:
-        write_section("agent-forward", text)
-    return 0
+    return publish("agent-forward", text, args.write)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ import subprocess
 import sys
 import time
 
-from _report import machine, write_section  # bench/ is on sys.path when run as a script
+from _report import machine, publish  # bench/ is on sys.path when run as a script
 
 BLUESKY = r"""
 import sys, time
@@ -93,10 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"Ratio: **{a / b:.0f}×** (the issue asks for about 20×).",
     ])
-    print(text)
-    if args.write:
-        write_section("bluesky-gym", text)
-    return 0
+    return publish("bluesky-gym", text, args.write)
 
 
 if __name__ == "__main__":

@@ -42,7 +42,7 @@ import time
 import gymnasium as gym
 import numba
 import numpy as np
-from _report import machine, write_section  # bench/ is on sys.path when run as a script
+from _report import machine, publish  # bench/ is on sys.path when run as a script
 from gymnasium.vector import SyncVectorEnv
 
 import atc_nf_env
@@ -323,10 +323,7 @@ def main(argv: list[str] | None = None) -> int:
             "measured interleaved, are what to compare between runs.",
         ]
     )
-    print(text)
-    if args.write:
-        write_section("envs", text)
-    return 0
+    return publish("envs", text, args.write)
 
 
 if __name__ == "__main__":

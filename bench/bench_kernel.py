@@ -22,7 +22,7 @@ import time
 from types import ModuleType
 
 import numpy as np
-from _report import machine, write_section  # bench/ is on sys.path when run as a script
+from _report import machine, publish  # bench/ is on sys.path when run as a script
 from frozen_kernel import kernel as frozen
 
 import numba
@@ -242,10 +242,7 @@ def main(argv: list[str] | None = None) -> int:
             "kernel's layout\"), and libm calls that are bit for bit the same in a vector lane as alone.",
         ]
     )
-    print(text)
-    if args.write:
-        write_section("kernel", text)
-    return 0
+    return publish("kernel", text, args.write)
 
 
 if __name__ == "__main__":

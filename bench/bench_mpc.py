@@ -28,7 +28,7 @@ import statistics
 import subprocess
 import sys
 
-from _report import machine, write_section  # bench/ is on sys.path when run as a script
+from _report import machine, publish  # bench/ is on sys.path when run as a script
 
 CHILD = r"""
 import json, sys, time
@@ -149,10 +149,7 @@ def main(argv: list[str] | None = None) -> int:
             "130 MB).",
         ]
     )
-    print(text)
-    if args.write:
-        write_section("mpc", text)
-    return 0
+    return publish("mpc", text, args.write)
 
 
 if __name__ == "__main__":

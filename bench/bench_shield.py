@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _report import machine, write_section  # bench/ is on sys.path when run as a script
+from _report import machine, publish  # bench/ is on sys.path when run as a script
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -152,10 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         "",
         *rows,
     ])
-    print(text)
-    if args.write:
-        write_section("shield", text)
-    return 0
+    return publish("shield", text, args.write)
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ import math
 import sys
 
 import numpy as np
-from _report import write_section  # bench/ is on sys.path when run as a script
+from _report import publish  # bench/ is on sys.path when run as a script
 
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import run_episode
@@ -268,10 +268,7 @@ def main(argv: list[str] | None = None) -> int:
             "",
         ]
     )
-    print(text)
-    if args.write:
-        write_section("integration-step", text)
-    return 0
+    return publish("integration-step", text, args.write)
 
 
 if __name__ == "__main__":

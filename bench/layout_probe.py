@@ -33,7 +33,7 @@ import time
 
 import numba
 import numpy as np
-from _report import machine, write_section  # bench/ is on sys.path when run as a script
+from _report import machine, publish  # bench/ is on sys.path when run as a script
 from numba import njit
 
 from atc_nf_env.config import SimConfig
@@ -189,10 +189,7 @@ def main(argv: list[str] | None = None) -> int:
         "the branches cost); a kernel in this layout is the way to the issue's 2× that the per-world kernel "
         "does not take. One call per B worlds: the call's own cost is spread over B.",
     ])
-    print(text)
-    if args.write:
-        write_section("layout-probe", text)
-    return 0
+    return publish("layout-probe", text, args.write)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from _report import write_section  # bench/ is on sys.path when run as a script
+from _report import publish  # bench/ is on sys.path when run as a script
 
 
 def study(model: str, scenario_name: str, seeds: int, stall: bool) -> dict:
@@ -87,10 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         "",
         *rows,
     ])
-    print(text)
-    if args.write:
-        write_section(args.section, text)
-    return 0
+    return publish(args.section, text, args.write)
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ import time
 
 import numba
 import numpy as np
-from _report import machine, write_section  # bench/ is on sys.path when run as a script
+from _report import machine, publish  # bench/ is on sys.path when run as a script
 from numba import njit, prange
 from soa_step_probe import (
     AIRSPEED,
@@ -324,10 +324,7 @@ def main(argv: list[str] | None = None) -> int:
         "faster than the kernel, pay for the pairs here. A kernel in this layout would have to skip the pairs of a "
         "block of worlds together where none of the block is in range.",
     ])
-    print(text)
-    if args.write:
-        write_section("soa-dense-probe", text)
-    return 0
+    return publish("soa-dense-probe", text, args.write)
 
 
 if __name__ == "__main__":

@@ -38,7 +38,7 @@ import time
 
 import numba
 import numpy as np
-from _report import machine, write_section  # bench/ is on sys.path when run as a script
+from _report import machine, publish  # bench/ is on sys.path when run as a script
 from bench_kernel import Case
 from numba import njit, prange
 
@@ -302,10 +302,7 @@ def main(argv: list[str] | None = None) -> int:
            "On this evidence the layout does not by itself double the kernel's rate: atan2 and sincos stay "
            "scalar in both, and bound it."),
     ])
-    print(text)
-    if args.write:
-        write_section("soa-step-probe", text)
-    return 0
+    return publish("soa-step-probe", text, args.write)
 
 
 if __name__ == "__main__":

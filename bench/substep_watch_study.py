@@ -27,7 +27,7 @@ import sys
 import warnings
 
 import numpy as np
-from _report import machine, write_section  # bench/ is on sys.path when run as a script
+from _report import machine, publish  # bench/ is on sys.path when run as a script
 from integration_step_study import (
     ENSEMBLE_SIZE,
     PERTURBATION_NM,
@@ -123,10 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         "",
     ]
     text = "\n".join(lines)
-    print(text)
-    if args.write:
-        write_section("substep-watch", text)
-    return 0
+    return publish("substep-watch", text, args.write)
 
 
 if __name__ == "__main__":
