@@ -13,7 +13,9 @@ accuracy, before anyone does it:
 - accuracy: the largest error in ulps of the double result against libm over random
   arguments (headings in [-3π, 3π], gradient components of any sign and scale);
 - speed: ns per call in a loop over 4096 arguments, for libm and for ours, alternately
-  over rounds (medians); ours in a loop LLVM can vectorize, libm's as the kernel calls it.
+  over rounds (medians); ours in a loop LLVM can vectorize, libm's as the kernel calls it;
+  and both in a chain where each argument depends on the last result, which cannot be
+  vectorized (one aircraft's steps on the scalar path).
 
 Run: python bench/experiments/trig_probe.py [--rounds 21]
 """
@@ -104,6 +106,25 @@ def poly_loop(y: np.ndarray, x: np.ndarray, h: np.ndarray, out: np.ndarray) -> N
         out[k] = poly_atan2(y[k], x[k]) + c + s
 
 
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def libm_chain(y: np.ndarray, x: np.ndarray, h: np.ndarray) -> float:
+    """Each call's argument depends on the last result, as along one aircraft's steps (no
+    vectorization: the scalar path's case)."""
+    carry = 0.0
+    for k in range(y.shape[0]):
+        carry = 1e-3 * (math.atan2(y[k] + carry, x[k]) + math.cos(h[k] + carry) + math.sin(h[k] + carry))
+    return carry
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def poly_chain(y: np.ndarray, x: np.ndarray, h: np.ndarray) -> float:
+    carry = 0.0
+    for k in range(y.shape[0]):
+        s, c = poly_sincos(h[k] + carry)
+        carry = 1e-3 * (poly_atan2(y[k] + carry, x[k]) + c + s)
+    return carry
+
+
 @njit(cache=True, error_model="numpy")
 def errors(y: np.ndarray, x: np.ndarray, h: np.ndarray) -> np.ndarray:
     """Ours against libm, for atan2, sin and cos: the largest error in ulps where the result
@@ -148,6 +169,17 @@ def main(argv: list[str] | None = None) -> int:
             times[name].append((time.perf_counter() - t0) / (50 * m) * 1e9)
     libm, ours = statistics.median(times["libm"]), statistics.median(times["ours"])
     print(f"atan2 + sincos per argument, one thread, medians of {args.rounds} rounds: libm {libm:.1f} ns, "
+          f"ours {ours:.1f} ns ({libm / ours:.2f}x), in a loop LLVM vectorizes")
+    chain: dict[str, list[float]] = {"libm": [], "ours": []}
+    for r in range(args.rounds):
+        for name, loop in (("libm", libm_chain), ("ours", poly_chain))[:: 1 if r % 2 else -1]:
+            loop(y[:m], x[:m], h[:m])
+            t0 = time.perf_counter()
+            for _ in range(50):
+                loop(y[:m], x[:m], h[:m])
+            chain[name].append((time.perf_counter() - t0) / (50 * m) * 1e9)
+    libm, ours = statistics.median(chain["libm"]), statistics.median(chain["ours"])
+    print(f"the same, each argument depending on the last result (the scalar path's case): libm {libm:.1f} ns, "
           f"ours {ours:.1f} ns ({libm / ours:.2f}x)")
     return 0
 
