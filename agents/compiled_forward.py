@@ -15,6 +15,10 @@ agrees with SB3's ``predict`` to float32 rounding, ~1e-6, not bit for bit; the t
 check 1e-5). Every row of a batch is computed alone, so an aircraft's action is the same
 bit for bit whatever the other rows are. Compiled without fast-math: no reassociation.
 
+Scratch: each model's forward pass keeps its buffers between calls (``agents.policy``).
+That is safe across threads because these functions hold the GIL (no ``nogil``): two
+threads never run one model's compiled pass at once.
+
 Layout of a packed network (``pack_layers``): ``weights`` float32 holds, per layer, W^T
 (D_in, D_out) row by row and then the bias (D_out,); ``layout`` int64 (L, 5) holds per
 layer (D_in, D_out, offset of W^T, offset of the bias, activation: ``IDENTITY``,
