@@ -226,47 +226,38 @@ def compiled_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
     head_weights, head_layout = pack_layers(head)
     n_actions = int(head_layout[-1, 1])
     obs_dim = int(np.prod(model.observation_space.shape))
+    compute: Callable[[np.ndarray, np.ndarray], bool]
     if extractor is None:
         buf_a, buf_b = (np.zeros(widest(head_layout), dtype=np.float32) for _ in range(2))
 
-        def forward(obs: np.ndarray) -> np.ndarray:
-            x = _observations(obs, obs_dim)
-            out = np.empty((x.shape[0], n_actions), dtype=np.float32)
-            if not mlp_actions(x, head_weights, head_layout, output, buf_a, buf_b, out):
-                raise _not_finite()
-            return out
+        def compute(x: np.ndarray, out: np.ndarray) -> bool:
+            return mlp_actions(x, head_weights, head_layout, output, buf_a, buf_b, out)
+    else:
+        from agents.deepsets import N_NEIGHBOUR, N_OWN
 
-        return forward
-    from agents.deepsets import N_NEIGHBOUR, N_OWN
+        own_weights, own_layout = pack_layers(_mlp_layers(extractor.own))
+        phi_weights, phi_layout = pack_layers(_mlp_layers(extractor.phi))
+        width = max(widest(own_layout), widest(phi_layout), widest(head_layout))
+        buf_a, buf_b = (np.zeros(width, dtype=np.float32) for _ in range(2))
+        features = np.zeros(3 * extractor.hidden, dtype=np.float32)
+        n_slots = int(extractor.n_slots)
 
-    own_weights, own_layout = pack_layers(_mlp_layers(extractor.own))
-    phi_weights, phi_layout = pack_layers(_mlp_layers(extractor.phi))
-    width = max(widest(own_layout), widest(phi_layout), widest(head_layout))
-    buf_a, buf_b = (np.zeros(width, dtype=np.float32) for _ in range(2))
-    features = np.zeros(3 * extractor.hidden, dtype=np.float32)
-    n_slots = int(extractor.n_slots)
+        def compute(x: np.ndarray, out: np.ndarray) -> bool:
+            return deepsets_actions(x, N_OWN, n_slots, N_NEIGHBOUR, own_weights, own_layout,
+                                    phi_weights, phi_layout, head_weights, head_layout, output, buf_a,
+                                    buf_b, features, out)
 
     def forward(obs: np.ndarray) -> np.ndarray:
-        x = _observations(obs, obs_dim)
+        x = np.ascontiguousarray(obs, dtype=np.float32)
+        if x.ndim != 2 or x.shape[1] != obs_dim:
+            raise ValueError(f"observations of shape {np.shape(obs)}; expected (B, {obs_dim})")
         out = np.empty((x.shape[0], n_actions), dtype=np.float32)
-        if not deepsets_actions(x, N_OWN, n_slots, N_NEIGHBOUR, own_weights, own_layout, phi_weights,
-                                phi_layout, head_weights, head_layout, output, buf_a, buf_b, features, out):
-            raise _not_finite()
+        if not compute(x, out):
+            raise ValueError("observations contain NaN or inf (after conversion to float32); "
+                             "all must be finite")
         return out
 
     return forward
-
-
-def _observations(obs: np.ndarray, obs_dim: int) -> np.ndarray:
-    """``obs`` as the compiled forward pass reads it: C-contiguous float32 (B, obs_dim)."""
-    x = np.ascontiguousarray(obs, dtype=np.float32)
-    if x.ndim != 2 or x.shape[1] != obs_dim:
-        raise ValueError(f"observations of shape {np.shape(obs)}; expected (B, {obs_dim})")
-    return x
-
-
-def _not_finite() -> ValueError:
-    return ValueError("observations contain NaN or inf (after conversion to float32); all must be finite")
 
 
 # ------------------------------------------------------------------ the policy
