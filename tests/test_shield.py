@@ -477,3 +477,52 @@ def test_first_safe_of_a_batch_is_the_first_candidate_safe_alone(scenario, seed,
         assert batch_survived[m] == alone[m][1]
         if not alone[m][0]:
             assert np.array_equal(batch_blamed[m], alone[m][2])
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    scenario=st.sampled_from(["random-4", "random-6", "converging-6"]),
+    seed=st.integers(0, 10_000),
+    n_candidates=st.integers(2, 40),
+    spread=st.floats(0.0, 1.5),
+    threads=st.integers(2, 4),
+)
+def test_first_safe_on_threads_answers_as_one_thread(scenario, seed, n_candidates, spread, threads):
+    """The candidates shared among threads (``_first_safe_split``) give the sequential
+    search's answer, survival and blame of every candidate up to it (−1 after it), and the
+    safe candidate's positions after the first period, whichever thread finds it first."""
+    import numba
+
+    from atc_nf_env import kernel
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.shield_prediction import NONE_SAFE, PlanPredictor
+    from atc_nf_env.simulation import initial_state
+
+    sc = make_scenario(scenario, seed=seed)
+    params = SimConfig().to_params(sc.workspace_radius_nm, stop_on_violation=True)
+    state = initial_state(sc, 1)[0]
+    rng = np.random.default_rng(seed)
+    to_dest = state[:, kernel.S_DEST_X : kernel.S_DEST_Y + 1] - state[:, :2]
+    angles = np.arctan2(to_dest[:, 1], to_dest[:, 0])[None] + rng.uniform(-spread, spread, (n_candidates, len(state)))
+    distances = rng.uniform(20.0, 150.0, (n_candidates, len(state)))
+    candidates = np.ascontiguousarray(
+        state[None, :, :2] + distances[..., None] * np.stack([np.cos(angles), np.sin(angles)], axis=-1))
+    wind_kt = rng.uniform(-20.0, 20.0, 2)
+    answers = []
+    before = numba.get_num_threads()
+    try:
+        for n_threads in (1, min(threads, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(n_threads)
+            predictor = PlanPredictor(params, 60, 2, 130.0, np.pi / 3, 0.99 * (sc.workspace_radius_nm - 2.5))
+            index = predictor.first_safe(state, candidates, wind_kt)
+            last = n_candidates if index == NONE_SAFE else index + 1
+            answers.append((index, predictor.survived[:n_candidates].copy(), predictor.blamed[:last].copy(),
+                            predictor.positions.copy(), predictor.alive.copy()))
+    finally:
+        numba.set_num_threads(before)
+    (index, survived, blamed, positions, alive), split = answers
+    assert split[0] == index
+    assert np.array_equal(split[1], survived)
+    assert np.array_equal(split[2][survived[: len(split[2])] < 120], blamed[survived[: len(blamed)] < 120])
+    if index != NONE_SAFE:
+        assert np.array_equal(split[3], positions) and np.array_equal(split[4], alive)
