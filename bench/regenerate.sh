@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# Every stamped table of the project, flown again on the build in the working tree: the
+# command printed above each table, in the order their inputs need (the MPC's reproduction
+# runs first: the agent studies reuse them with --reuse-mpc), then the model cards, then
+# BENCHMARKS.md. Run it after a change to any source the build fingerprint hashes
+# (atc_nf_env.build.PACKAGE_SOURCES and baselines/), on an otherwise idle machine: the
+# tables' timings are measured as they are written. Logs: out/regenerate/NN-name.log.
+#
+#   bash bench/regenerate.sh            # everything (about 45 min on 2 cores)
+#   bash bench/regenerate.sh studies    # REPRODUCTION.md, README.md, agents/README.md, cards
+#   bash bench/regenerate.sh benchmarks # BENCHMARKS.md
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON=${PYTHON:-.venv/bin/python}
+ATC_NF=${ATC_NF:-.venv/bin/atc-nf}
+WHAT=${1:-all}
+LOGS=out/regenerate
+mkdir -p "$LOGS"
+step=0
+
+run() {  # run NAME COMMAND...: the command, its output in $LOGS, its time on the terminal
+    step=$((step + 1))
+    local log
+    log=$(printf '%s/%02d-%s.log' "$LOGS" "$step" "$1")
+    shift
+    local start=$SECONDS
+    echo "[$(date +%H:%M:%S)] $*"
+    "$@" >"$log" 2>&1 || { echo "failed: see $log"; tail -20 "$log"; exit 1; }
+    echo "    done in $((SECONDS - start)) s"
+}
+
+benchmark() {  # benchmark NAME ARGS...: python -m agents.benchmark ARGS --no-progress
+    local name=$1
+    shift
+    run "$name" "$PYTHON" -m agents.benchmark "$@" --no-progress
+}
+
+if [[ $WHAT == all || $WHAT == studies ]]; then
+    run reproduce "$ATC_NF" reproduce --runs 1000
+    benchmark agents-vs-mpc --models agents/models/imitation_bc.zip,agents/models/imitation_dagger.zip,agents/models/finetuned_ppo.zip --runs 300 --workers 2 --reuse-mpc out/reproduction --summary agents/results/summary.json --table agents/results/table.md --write-section 'agents/README.md#agents-vs-mpc'
+    benchmark scratch-ppo --models agents/models/scratch_ppo.zip --baselines '' --runs 300 --workers 2 --out out/agents_scratch --summary agents/results/scratch_ppo_summary.json --table agents/results/scratch_ppo_table.md --write-section 'agents/README.md#scratch-ppo'
+    benchmark deepsets --models agents/models/deepsets_mixed.zip --baselines '' --runs 300 --workers 2 --scenarios converging-3,converging-4,converging-5,converging-6,converging-7,converging-8,converging-12,converging-16,random-4,random-5,random-6,random-7,random-8,random-16 --out out/agents_deepsets --summary agents/results/deepsets_summary.json --table agents/results/deepsets_table.md --write-section 'agents/README.md#deepsets'
+    benchmark deepsets-shield --shield --models agents/models/deepsets_mixed.zip --baselines '' --scenarios random-4,random-5,random-6,random-7,random-8 --runs 100 --workers 2 --out out/deepsets_shield --summary agents/results/deepsets_shield_summary.json --table agents/results/deepsets_shield_table.md --write-section 'agents/README.md#deepsets-shield'
+    benchmark deepsets-shield-300 --shield --models agents/models/deepsets_mixed.zip --baselines '' --scenarios converging-3,converging-4,converging-5,converging-6,converging-7,converging-8,random-4,random-5,random-6,random-7,random-8 --runs 300 --workers 2 --out out/agents_deepsets --summary agents/results/deepsets_shield300_summary.json --table agents/results/deepsets_shield300_table.md --write-section 'agents/README.md#deepsets-shield-300'
+    benchmark deepsets-shield-large --shield --models agents/models/deepsets_mixed.zip --baselines '' --scenarios converging-12,converging-16,random-16 --runs 300 --workers 2 --out out/agents_deepsets --summary agents/results/deepsets_shield_large_summary.json --table agents/results/deepsets_shield_large_table.md --write-section 'agents/README.md#deepsets-shield-large'
+    benchmark shield-1000 --shield --models agents/models/finetuned_ppo.zip --baselines mpc --scenarios converging-4,converging-6,random-4,random-6 --runs 1000 --workers 1 --reuse-mpc out/reproduction --out out/shield1000 --summary agents/results/shield1000_summary.json --table agents/results/shield1000_table.md --write-section 'agents/README.md#shield-1000'
+    benchmark deepsets-shield-1000 --shield --models agents/models/deepsets_mixed.zip --baselines mpc --scenarios converging-4,converging-6,random-4,random-6 --runs 1000 --workers 2 --reuse-mpc out/reproduction --out out/deepsets_shield1000 --summary agents/results/deepsets_shield1000_summary.json --table agents/results/deepsets_shield1000_table.md --write-section 'agents/README.md#deepsets-shield-1000'
+    benchmark shield-study --shield --models agents/models/finetuned_ppo.zip,agents/models/imitation_bc.zip,agents/models/imitation_dagger.zip --scenarios converging-4,converging-6,random-4,random-6 --runs 50 --workers 2 --out out/shield --summary agents/results/shield_summary.json --table agents/results/shield_table.md --write-section 'README.md#shield-study'
+    run cards "$PYTHON" -m agents.cards
+fi
+
+if [[ $WHAT == all || $WHAT == benchmarks ]]; then
+    run bench-kernel "$PYTHON" bench/bench_kernel.py --write
+    run bench-envs "$PYTHON" bench/bench_envs.py --write
+    run bench-mpc "$PYTHON" bench/bench_mpc.py --seeds 5 --repeats 2 --write
+    run bench-shield "$PYTHON" bench/bench_shield.py --seeds 50 --scenarios converging-4,converging-6,random-4,random-6 --write
+    run shield-stall "$PYTHON" bench/shield_stall_study.py --models agents/models/deepsets_mixed.zip --scenarios random-7,random-8 --seeds 100 --write
+    run shield-stall-mlp "$PYTHON" bench/shield_stall_study.py --models agents/models/finetuned_ppo.zip,agents/models/imitation_bc.zip,agents/models/imitation_dagger.zip --scenarios random-4,random-6 --seeds 100 --section shield-stall-mlp --write
+    run substep-watch "$PYTHON" bench/substep_watch_study.py --seeds 8 --write
+    run agent-forward "$PYTHON" bench/bench_agent_forward.py --seeds 20 --scenarios converging-4,random-6 --write
+    run layout-probe "$PYTHON" bench/layout_probe.py --rounds 31 --write
+    run soa-step-probe "$PYTHON" bench/soa_step_probe.py --rounds 41 --write
+    run soa-dense-probe "$PYTHON" bench/soa_dense_probe.py --rounds 41 --worlds 2000 --start-min 30 --write
+fi
+echo "regenerated ($WHAT) on build $("$PYTHON" -c 'from atc_nf_env import build; print(build.fingerprint())')"
