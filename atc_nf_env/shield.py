@@ -157,7 +157,7 @@ class SafetyFilter:
         >>> shielded.episode_info()["shield_filtered"]  # doctest: +SKIP
     """
 
-    #: Whether this process has loaded the batched kernel and the threaded search (see ``reset``).
+    #: Whether this process has loaded the batched kernel (see ``reset``).
     _batch_warm = False
 
     def __init__(
@@ -251,12 +251,8 @@ class SafetyFilter:
             from atc_nf_env.simulation import initial_state
 
             state = initial_state(scenario, 2)
-            waypoints = state[:, :, S_WP_X : S_WP_Y + 1].copy()
-            kernel.advance(state, waypoints, np.zeros((2, 2)), config.dt_s, self._params,
-                           scratch=kernel.KernelScratch())
-            # And the threaded search of a tier of alternatives (a compiled function of its
-            # own): two candidates are a tier.
-            self._predictor.first_safe(np.ascontiguousarray(state[0]), waypoints, np.zeros(2))
+            kernel.advance(state, state[:, :, S_WP_X : S_WP_Y + 1].copy(), np.zeros((2, 2)), config.dt_s,
+                           self._params, scratch=kernel.KernelScratch())
             SafetyFilter._batch_warm = True
 
     def act(self, view: WorldView) -> np.ndarray:

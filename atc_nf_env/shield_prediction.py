@@ -11,13 +11,6 @@ alternatives, each paying it again. Here the whole sequence is one compiled call
 flies the kernel's own ``_advance_world`` (the same compiled flight as ``advance``, so a
 prediction is bit for bit the kernel's) on buffers kept between calls.
 
-A call with several candidates (a tier of alternatives) shares them among numba's threads
-(``_first_safe_split``): each flies every T-th candidate in order, and a thread stops once
-another has found a safe candidate of lower index. The answer, and every output up to it,
-is the sequential search's. It pays because a tier's alternatives are independent worlds
-and most of them breach late, in the look-ahead period: a tier is several nearly full
-flights in a row, where a second core otherwise idles.
-
 Units: nautical miles, knots, seconds, radians.
 """
 
@@ -25,9 +18,8 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from atc_nf_env import kernel
 from atc_nf_env.kernel import (
@@ -156,86 +148,6 @@ def _structured_alternatives(
     return candidates, changed
 
 
-# Outcomes of ``_fly_candidate``.
-_UNSAFE = 0
-_SAFE = 1
-
-
-@njit(cache=True, error_model="numpy")
-def _fly_candidate(
-    m: int,
-    state: np.ndarray,
-    candidates: np.ndarray,
-    wind: np.ndarray,
-    params: np.ndarray,
-    period_steps: int,
-    lookahead_periods: int,
-    home_distance_nm: float,
-    max_turn_rad: float,
-    limit_nm: float,
-    world: np.ndarray,
-    home: np.ndarray,
-    grad: np.ndarray,
-    command: np.ndarray,
-    min_airspeed: np.ndarray,
-    max_airspeed: np.ndarray,
-    worst_excursion: np.ndarray,
-    violation_steps: np.ndarray,
-    steps_flown: np.ndarray,
-    los_pairs: np.ndarray,
-    record: np.ndarray,
-    survived: np.ndarray,
-    blamed: np.ndarray,
-    positions: np.ndarray,
-    alive: np.ndarray,
-) -> int:
-    """Fly candidate ``m`` from a copy of ``state`` into the scratch ``world``: ``_SAFE``,
-    ``_UNSAFE`` or ``_NON_FINITE``. Writes ``survived[m]`` and ``blamed[m]``, and when safe
-    its ``positions`` and ``alive`` after the first period. Not inlined: the sequential and
-    the two-thread search fly one compiled body, so a candidate's verdict is the same bits
-    in both. Compiled without fast-math: its finiteness checks would be compiled away under
-    no-NaN, no-inf flags."""
-    n = state.shape[0]
-    for i in range(n):
-        blamed[m, i] = False
-        for field in range(state.shape[1]):
-            world[i, field] = state[i, field]
-    offset = 0
-    for period in range(lookahead_periods):
-        if period == 0:
-            waypoints = candidates[m]
-        else:
-            any_alive = False
-            for i in range(n):
-                any_alive |= world[i, S_STATUS] == FLYING
-            if not any_alive:
-                break
-            _homing_waypoints(world, candidates[m], home_distance_nm, max_turn_rad, limit_nm, home)
-            waypoints = home
-        _, done, violated = kernel._advance_world(
-            world, waypoints, wind[0], wind[1], period_steps, params, grad, command, min_airspeed,
-            max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, record, 1,
-        )
-        if not kernel._all_finite(world):
-            return _NON_FINITE
-        if violated:
-            survived[m] = offset + done - 1
-            for i in range(n):
-                pair = False
-                for j in range(n):
-                    pair |= los_pairs[i, j] != 0
-                blamed[m, i] = violation_steps[i] > 0 or pair
-            return _UNSAFE
-        if period == 0:
-            for i in range(n):
-                positions[i, 0] = world[i, S_X]
-                positions[i, 1] = world[i, S_Y]
-                alive[i] = world[i, S_STATUS] == FLYING
-        offset += period_steps
-    survived[m] = lookahead_periods * period_steps
-    return _SAFE
-
-
 @njit(cache=True, error_model="numpy")
 def _first_safe(
     state: np.ndarray,
@@ -264,96 +176,55 @@ def _first_safe(
     alive: np.ndarray,
 ) -> int:
     """Index of the first safe candidate (M, N, 2), ``NONE_SAFE``, or ``_NON_FINITE`` when a
-    flight produced a NaN or inf, the candidates flown one after another on this thread
-    (``_fly_candidate`` says what each writes)."""
+    flight produced a NaN or inf. For each candidate flown: ``survived[m]``, the integration
+    steps it stayed safe (the whole look-ahead when safe), and ``blamed[m]``, the aircraft
+    that left the envelope or lost separation. ``positions``/``alive``: the first safe
+    candidate's positions and flying flags after the first period. Compiled without
+    fast-math: its finiteness checks would be compiled away under no-NaN, no-inf flags."""
+    n = state.shape[0]
     for m in range(candidates.shape[0]):
-        outcome = _fly_candidate(
-            m, state, candidates, wind, params, period_steps, lookahead_periods, home_distance_nm,
-            max_turn_rad, limit_nm, world, home, grad, command, min_airspeed, max_airspeed, worst_excursion,
-            violation_steps, steps_flown, los_pairs, record, survived, blamed, positions, alive,
-        )
-        if outcome == _SAFE:
-            return m
-        if outcome == _NON_FINITE:
-            return _NON_FINITE
-    return NONE_SAFE
-
-
-@njit(cache=True, error_model="numpy", parallel=True)
-def _first_safe_split(
-    state: np.ndarray,
-    candidates: np.ndarray,
-    wind: np.ndarray,
-    params: np.ndarray,
-    period_steps: int,
-    lookahead_periods: int,
-    home_distance_nm: float,
-    max_turn_rad: float,
-    limit_nm: float,
-    world: np.ndarray,
-    home: np.ndarray,
-    grad: np.ndarray,
-    command: np.ndarray,
-    min_airspeed: np.ndarray,
-    max_airspeed: np.ndarray,
-    worst_excursion: np.ndarray,
-    violation_steps: np.ndarray,
-    steps_flown: np.ndarray,
-    los_pairs: np.ndarray,
-    record: np.ndarray,
-    survived: np.ndarray,
-    blamed: np.ndarray,
-    positions: np.ndarray,
-    alive: np.ndarray,
-    found: np.ndarray,
-) -> int:
-    """``_first_safe``'s answer with the candidates shared among T threads (the scratch
-    arrays carry a leading axis of T): thread t flies candidates t, t + T, t + 2T, … in
-    order, and stops at its first safe one or once another thread has found a safe one of
-    lower index. Every candidate before the lowest safe index is flown by its thread, so
-    the answer, ``survived`` and ``blamed`` up to it are the sequential search's; the
-    candidates after it that a thread flew meanwhile are reset to −1 by the caller.
-    ``found`` (T,): scratch, per thread the index of its first safe candidate (M if none)
-    or of its first non-finite flight as −2 − index. Returns (``_first_safe``'s answer, the
-    thread whose ``positions`` and ``alive`` belong to the safe candidate)."""
-    n_threads = found.shape[0]
-    n_candidates = candidates.shape[0]
-    for t in range(n_threads):
-        found[t] = n_candidates
-    for t in prange(n_threads):
-        for m in range(t, n_candidates, n_threads):
-            lowest = n_candidates
-            for u in range(n_threads):
-                # Another thread's entry is read while it may be written: an aligned int64
-                # is read whole, and a stale value only means flying one more candidate.
-                if 0 <= found[u] < lowest:
-                    lowest = found[u]
-            if lowest < m:
-                break
-            outcome = _fly_candidate(
-                m, state, candidates, wind, params, period_steps, lookahead_periods, home_distance_nm,
-                max_turn_rad, limit_nm, world[t], home[t], grad[t], command[t], min_airspeed[t],
-                max_airspeed[t], worst_excursion[t], violation_steps[t], steps_flown[t], los_pairs[t],
-                record, survived, blamed, positions[t], alive[t],
+        for i in range(n):
+            blamed[m, i] = False
+            for field in range(state.shape[1]):
+                world[i, field] = state[i, field]
+        offset = 0
+        safe = True
+        for period in range(lookahead_periods):
+            if period == 0:
+                waypoints = candidates[m]
+            else:
+                any_alive = False
+                for i in range(n):
+                    any_alive |= world[i, S_STATUS] == FLYING
+                if not any_alive:
+                    break
+                _homing_waypoints(world, candidates[m], home_distance_nm, max_turn_rad, limit_nm, home)
+                waypoints = home
+            _, done, violated = kernel._advance_world(
+                world, waypoints, wind[0], wind[1], period_steps, params, grad, command, min_airspeed,
+                max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, record, 1,
             )
-            if outcome == _SAFE:
-                found[t] = m
+            if not kernel._all_finite(world):
+                return _NON_FINITE
+            if violated:
+                survived[m] = offset + done - 1
+                for i in range(n):
+                    pair = False
+                    for j in range(n):
+                        pair |= los_pairs[i, j] != 0
+                    blamed[m, i] = violation_steps[i] > 0 or pair
+                safe = False
                 break
-            if outcome == _NON_FINITE:
-                found[t] = -2 - m
-                break
-    safe = n_candidates
-    winner = 0
-    non_finite = n_candidates
-    for t in range(n_threads):
-        if 0 <= found[t] < safe:
-            safe = found[t]
-            winner = t
-        elif found[t] < 0:
-            non_finite = min(non_finite, -2 - found[t])
-    if non_finite < safe:
-        return _NON_FINITE, winner
-    return (safe if safe < n_candidates else NONE_SAFE), winner
+            if period == 0:
+                for i in range(n):
+                    positions[i, 0] = world[i, S_X]
+                    positions[i, 1] = world[i, S_Y]
+                    alive[i] = world[i, S_STATUS] == FLYING
+            offset += period_steps
+        if safe:
+            survived[m] = lookahead_periods * period_steps
+            return m
+    return NONE_SAFE
 
 
 def _check_inputs(state: np.ndarray, candidates: np.ndarray, wind_kt: np.ndarray) -> None:
@@ -419,7 +290,6 @@ class PlanPredictor:
         self._homing = (float(home_distance_nm), float(max_turn_rad), float(limit_nm))
         self._n_aircraft = -1
         self._capacity = 0
-        self._split_scratch: tuple | None = None
 
     def _buffers(self, n_aircraft: int, n_candidates: int) -> None:
         if n_aircraft != self._n_aircraft:
@@ -441,26 +311,9 @@ class PlanPredictor:
             self.survived = np.full(self._capacity, -1, dtype=np.int64)
             self.blamed = np.zeros((self._capacity, n_aircraft), dtype=np.bool_)
 
-    def _thread_buffers(self, n_threads: int) -> tuple:
-        """Scratch of ``_first_safe_split``: every per-world buffer with a leading axis of
-        ``n_threads``, kept between calls like the single-thread ones."""
-        if self._split_scratch is None or self._split_scratch[-1].shape[0] != n_threads or \
-                self._split_scratch[0].shape[1] != self._n_aircraft:
-            n = self._n_aircraft
-            self._split_scratch = (
-                np.zeros((n_threads, n, N_STATE)), np.zeros((n_threads, n, 2)), np.zeros((n_threads, n, n, 2)),
-                np.zeros((n_threads, n, N_COMMAND)), np.zeros((n_threads, n)), np.zeros((n_threads, n)),
-                np.zeros((n_threads, n)), np.zeros((n_threads, n), dtype=np.int64),
-                np.zeros((n_threads, n), dtype=np.int64), np.zeros((n_threads, n, n), dtype=np.uint8),
-                np.zeros((n_threads, n, 2)), np.zeros((n_threads, n), dtype=np.bool_),
-                np.zeros(n_threads, dtype=np.int64),
-            )
-        return self._split_scratch
-
     def first_safe(self, state: np.ndarray, candidates: np.ndarray, wind_kt: np.ndarray, *, checked: bool = True) -> int:
         """Fly ``candidates`` (M, N, 2) nm one after another from a copy of ``state``
-        (N, N_STATE) under the constant ``wind_kt`` (2,) kt, until one is safe (with M > 1
-        on numba's threads, ``numba.get_num_threads()``, with the same answer).
+        (N, N_STATE) under the constant ``wind_kt`` (2,) kt, until one is safe.
 
         Returns:
             The index of the first safe candidate, or ``NONE_SAFE``. Then ``survived[:M]``
@@ -482,28 +335,14 @@ class PlanPredictor:
         n_candidates, n_aircraft = candidates.shape[0], state.shape[0]
         self._buffers(n_aircraft, n_candidates)
         self.survived[:n_candidates] = -1
-        n_threads = numba.get_num_threads() if n_candidates > 1 else 1
-        if n_threads > 1:
-            (world, home, grad, command, min_airspeed, max_airspeed, worst, violation_steps, steps_flown,
-             los_pairs, positions, alive, found) = self._thread_buffers(n_threads)
-            index, winner = _first_safe_split(
-                state, candidates, wind_kt, self.params, self.period_steps, self.lookahead_periods, *self._homing,
-                world, home, grad, command, min_airspeed, max_airspeed, worst, violation_steps, steps_flown,
-                los_pairs, self._record, self.survived, self.blamed, positions, alive, found,
-            )
-            if index >= 0:
-                self.survived[index + 1 : n_candidates] = -1  # flown by a thread meanwhile: not the answer's
-                self.positions[:] = positions[winner]
-                self.alive[:] = alive[winner]
-        else:
-            min_airspeed, max_airspeed, worst = self._per_aircraft
-            violation_steps, steps_flown = self._counts
-            index = _first_safe(
-                state, candidates, wind_kt, self.params, self.period_steps, self.lookahead_periods, *self._homing,
-                self._world, self._home, self._grad, self._command, min_airspeed, max_airspeed, worst,
-                violation_steps, steps_flown, self._los_pairs, self._record, self.survived, self.blamed,
-                self.positions, self.alive,
-            )
+        grad, command = self._grad, self._command
+        min_airspeed, max_airspeed, worst = self._per_aircraft
+        violation_steps, steps_flown = self._counts
+        index = _first_safe(
+            state, candidates, wind_kt, self.params, self.period_steps, self.lookahead_periods, *self._homing,
+            self._world, self._home, grad, command, min_airspeed, max_airspeed, worst, violation_steps,
+            steps_flown, self._los_pairs, self._record, self.survived, self.blamed, self.positions, self.alive,
+        )
         if index == _NON_FINITE:
             raise FloatingPointError(
                 "the safety filter's prediction produced NaN or inf; the scenario or gains lie outside the "

@@ -9,11 +9,13 @@
 #   bash bench/regenerate.sh            # everything (about 45 min on 2 cores)
 #   bash bench/regenerate.sh studies    # REPRODUCTION.md, README.md, agents/README.md, cards
 #   bash bench/regenerate.sh benchmarks # BENCHMARKS.md
+#   FROM=2 bash bench/regenerate.sh     # from the second command on (after a failure)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-.venv/bin/python}
 ATC_NF=${ATC_NF:-.venv/bin/atc-nf}
 WHAT=${1:-all}
+FROM=${FROM:-1}
 LOGS=out/regenerate
 mkdir -p "$LOGS"
 step=0
@@ -23,6 +25,9 @@ run() {  # run NAME COMMAND...: the command, its output in $LOGS, its time on th
     local log
     log=$(printf '%s/%02d-%s.log' "$LOGS" "$step" "$1")
     shift
+    if ((step < FROM)); then
+        return
+    fi
     local start=$SECONDS
     echo "[$(date +%H:%M:%S)] $*"
     "$@" >"$log" 2>&1 || { echo "failed: see $log"; tail -20 "$log"; exit 1; }
