@@ -241,3 +241,35 @@ def test_a_refined_step_keeps_the_outer_grid():
     # Sub-steps add up to whole steps: every aircraft still flying has flown 40 min.
     assert (state[0, :, S_STATUS] == FLYING).all()
     np.testing.assert_allclose(state[0, :, kernel.S_TIME], 8 * 300.0, rtol=0, atol=1e-6)
+
+
+def test_the_world_loop_counts_no_references_and_the_option_degrades_cleanly(monkeypatch):
+    # The world loop and its per-world wrapper are compiled without numba's reference
+    # counts (their atomic operations took about a quarter of a one-world flight); a numba
+    # without the private option keeps the counts instead of failing to import.
+    from numba.core import cpu
+
+    from atc_nf_env import nf
+
+    assert nf.NO_REFERENCE_COUNTS == {"_nrt": False}
+    for function in (kernel._advance_world, kernel._advance_one):
+        assert function.targetoptions.get("_nrt") is False
+    monkeypatch.setattr(cpu, "CPUTargetOptions", type("OptionsWithoutNrt", (), {}))
+    assert nf._without_reference_counts() == {}
+
+
+def test_a_world_flies_the_same_through_the_uncounted_loop_alone_and_in_a_batch():
+    # Reference counts or not, the arithmetic is the kernel's: one world flown alone, with
+    # the one-world path, equals the same world flown in a threaded batch with others.
+    scenario = random_encounter(6, seed=11)
+    params = params_for(scenario)
+    single = initial_state(scenario)
+    batch = np.repeat(single, 64, axis=0)
+    rng = np.random.default_rng(3)
+    wind = np.zeros((64, 2))
+    wind[1:] = rng.normal(0.0, 10.0, (63, 2))
+    for period in range(6):
+        waypoints = scenario.dest_xy[None] + rng.normal(0.0, 30.0, (64, scenario.n_aircraft, 2))
+        advance(single, waypoints[:1], wind[:1], 300.0, params)
+        advance(batch, waypoints, wind, 300.0, params)
+        assert np.array_equal(batch[0], single[0]), f"period {period}"
