@@ -51,7 +51,7 @@ if [[ $WHAT == all || $WHAT == studies ]]; then
     benchmark shield-1000 --shield --models agents/models/finetuned_ppo.zip --baselines mpc --scenarios converging-4,converging-6,random-4,random-6 --runs 1000 --workers 1 --reuse-mpc out/reproduction --out out/shield1000 --summary agents/results/shield1000_summary.json --table agents/results/shield1000_table.md --write-section 'agents/README.md#shield-1000'
     benchmark deepsets-shield-1000 --shield --models agents/models/deepsets_mixed.zip --baselines mpc --scenarios converging-4,converging-6,random-4,random-6 --runs 1000 --workers 2 --reuse-mpc out/reproduction --out out/deepsets_shield1000 --summary agents/results/deepsets_shield1000_summary.json --table agents/results/deepsets_shield1000_table.md --write-section 'agents/README.md#deepsets-shield-1000'
     benchmark shield-study --shield --models agents/models/finetuned_ppo.zip,agents/models/imitation_bc.zip,agents/models/imitation_dagger.zip --scenarios converging-4,converging-6,random-4,random-6 --runs 50 --workers 2 --out out/shield --summary agents/results/shield_summary.json --table agents/results/shield_table.md --write-section 'README.md#shield-study'
-    run cards "$PYTHON" -m agents.cards
+    run cards "$PYTHON" -m agents.cards --summaries agents/results/summary.json,agents/results/deepsets_summary.json,agents/results/scratch_ppo_summary.json
 fi
 
 if [[ $WHAT == all || $WHAT == benchmarks ]]; then
