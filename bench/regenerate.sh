@@ -19,6 +19,11 @@ FROM=${FROM:-1}
 LOGS=out/regenerate
 mkdir -p "$LOGS"
 step=0
+if ((FROM == 1)); then
+    # numba keys a cached function on its own file only: a caller's cache (the safety
+    # filter's prediction, the envs) keeps a callee compiled from an older kernel.py.
+    find atc_nf_env baselines agents -name '*.nbi' -delete -o -name '*.nbc' -delete
+fi
 
 run() {  # run NAME COMMAND...: the command, its output in $LOGS, its time on the terminal
     step=$((step + 1))
