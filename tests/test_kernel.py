@@ -257,19 +257,3 @@ def test_the_world_loop_counts_no_references_and_the_option_degrades_cleanly(mon
     monkeypatch.setattr(cpu, "CPUTargetOptions", type("OptionsWithoutNrt", (), {}))
     assert nf._without_reference_counts() == {}
 
-
-def test_a_world_flies_the_same_through_the_uncounted_loop_alone_and_in_a_batch():
-    # Reference counts or not, the arithmetic is the kernel's: one world flown alone, with
-    # the one-world path, equals the same world flown in a threaded batch with others.
-    scenario = random_encounter(6, seed=11)
-    params = params_for(scenario)
-    single = initial_state(scenario)
-    batch = np.repeat(single, 64, axis=0)
-    rng = np.random.default_rng(3)
-    wind = np.zeros((64, 2))
-    wind[1:] = rng.normal(0.0, 10.0, (63, 2))
-    for period in range(6):
-        waypoints = scenario.dest_xy[None] + rng.normal(0.0, 30.0, (64, scenario.n_aircraft, 2))
-        advance(single, waypoints[:1], wind[:1], 300.0, params)
-        advance(batch, waypoints, wind, 300.0, params)
-        assert np.array_equal(batch[0], single[0]), f"period {period}"
