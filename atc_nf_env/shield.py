@@ -70,12 +70,33 @@ import numpy as np
 
 from atc_nf_env import kernel
 from atc_nf_env.config import SimConfig
-from atc_nf_env.kernel import ABSENT, FLYING, S_DEST_X, S_DEST_Y, S_HEADING, S_STATUS, S_WP_X, S_WP_Y, S_X, S_Y
+from atc_nf_env.kernel import (
+    ABSENT,
+    FLYING,
+    S_DEST_X,
+    S_DEST_Y,
+    S_HEADING,
+    S_STATUS,
+    S_WP_X,
+    S_WP_Y,
+    S_X,
+    S_Y,
+)
 from atc_nf_env.policy import Policy
 from atc_nf_env.scenarios import Scenario
-from atc_nf_env.shield_prediction import NONE_SAFE, PlanPredictor, _homing_waypoints, _structured_alternatives
+from atc_nf_env.shield_prediction import (
+    NONE_SAFE,
+    SCREEN_HOMED,
+    SCREEN_NONE_FLYING,
+    SCREEN_NOT_FINITE,
+    SCREEN_SAFE,
+    DecisionMemory,
+    PlanPredictor,
+    _homing_waypoints,
+    _structured_alternatives,
+)
 from atc_nf_env.simulation import WorldView
-from atc_nf_env.units import DECISION_PERIOD_S, SECONDS_PER_HOUR
+from atc_nf_env.units import DECISION_PERIOD_S
 
 FALLBACKS = ("mpc", "least-bad")
 
@@ -108,11 +129,6 @@ ALTERNATIVE_KINDS = ("single", "joint", "sampled")
 SAMPLED_ALTERNATIVES = 64
 #: Tag of the sampled tier's random stream (the episode's seed is the other part).
 _SAMPLE_STREAM = 0x5348
-
-
-#: The state fields the filter reads per aircraft as plain numbers, and their places.
-_ROW_FIELDS = [S_X, S_Y, S_HEADING, S_DEST_X, S_DEST_Y, S_STATUS]
-_X, _Y, _HEADING, _DEST_X, _DEST_Y, _STATUS = range(len(_ROW_FIELDS))
 
 
 def _finite_number(name: str, value: Any, low: float, high: float) -> float:
@@ -217,10 +233,7 @@ class SafetyFilter:
         self._params: np.ndarray | None = None
         self._scratch = kernel.KernelScratch()
         self._counts = dict.fromkeys(SHIELD_INFO_KEYS, 0)
-        self._wind_estimate_kt = np.zeros(2)
-        self._predicted_positions: np.ndarray | None = None
-        self._predicted_flying: np.ndarray | None = None
-        self._predicted_time_s = -1.0
+        self._memory = DecisionMemory(0, self.stall_periods)
 
     # -- Policy interface -------------------------------------------------------------
     def reset(self, scenario: Scenario, config: SimConfig, seed: int | None = None) -> None:
@@ -239,12 +252,7 @@ class SafetyFilter:
         self._predictor = PlanPredictor(self._params, self._period_steps, self.lookahead_periods,
                                         self.home_distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm)
         self._counts = dict.fromkeys(SHIELD_INFO_KEYS, 0)
-        self._wind_estimate_kt = np.zeros(2)
-        self._predicted_positions = None
-        self._predicted_flying = None
-        self._predicted_time_s = -1.0
-        self._distance_history: list[tuple[float, list[float]]] = []
-        self._homebound = [False] * scenario.n_aircraft
+        self._memory = DecisionMemory(scenario.n_aircraft, self.stall_periods)
         if not SafetyFilter._batch_warm:
             # Load the batched kernel (numba's cache, or a compilation) now, not inside the
             # first timed decision that needs alternatives.
@@ -260,52 +268,53 @@ class SafetyFilter:
         if self._params is None:
             raise RuntimeError("call reset(scenario, config, seed) before act()")
         proposal = self.policy.act(view)
-        if np.iscomplexobj(proposal):
-            raise ValueError(f"{type(self.policy).__name__}.act returned complex waypoints; expected real (N, 2) nm")
-        proposal = np.asarray(proposal, dtype=np.float64)
+        if type(proposal) is not np.ndarray or proposal.dtype != np.float64:
+            if np.iscomplexobj(proposal):
+                raise ValueError(f"{type(self.policy).__name__}.act returned complex waypoints; expected real (N, 2) nm")
+            proposal = np.asarray(proposal, dtype=np.float64)
         state = np.ascontiguousarray(view.state, dtype=np.float64)  # the compiled prediction reads it as is
         n = state.shape[0]
         if proposal.shape != (n, 2):
             raise ValueError(f"{type(self.policy).__name__}.act returned shape {proposal.shape}; expected ({n}, 2) nm")
-        if not np.isfinite(proposal).all():
+        if not proposal.flags.c_contiguous:
+            proposal = np.ascontiguousarray(proposal)
+        memory = self._memory
+        stalled_before = memory.counts[1]
+        # The routine decision, wind estimate and stall rule included, in one compiled call
+        # (``PlanPredictor.screen``): its Python took about a fifth of a shielded decision.
+        verdict = self._predictor.screen(state, proposal, float(view.time_s), self.period_s, memory,
+                                         self.stall_progress_nm)
+        if verdict == SCREEN_NOT_FINITE:
             raise ValueError(f"{type(self.policy).__name__}.act returned NaN or inf waypoints: {proposal.tolist()}")
         counts = self._counts
         counts["shield_decisions"] += 1
-        # Plain Python numbers for the per-aircraft bookkeeping: a few aircraft cost less
-        # as scalars than as array operations.
-        rows = state[:, _ROW_FIELDS].tolist()
-        flying = [row[_STATUS] == FLYING for row in rows]
-        self._update_wind_estimate(view, rows, flying)
-        if not any(flying):
+        counts["shield_stalled_aircraft"] += int(memory.counts[1] - stalled_before)
+        if verdict == SCREEN_SAFE or verdict == SCREEN_NONE_FLYING:
             return proposal
-        planned = proposal if all(flying) else np.where(np.array(flying)[:, None], proposal,
-                                                        state[:, S_WP_X : S_WP_Y + 1])
-        homed = self._stalled(view.time_s, rows, flying)
+        flying = (state[:, S_STATUS] == FLYING).tolist()
+        planned = memory.planned[0].copy()
+        homed = verdict == SCREEN_HOMED
         if homed:
-            # The stall rule: these aircraft fly aimed home instead of the policy's waypoint.
-            planned = planned.copy()
-            # The MCMC-MPC's decision for them (the filter's wind estimate shared), every
-            # other aircraft keeping the policy's waypoint.
+            # The stall rule: the MCMC-MPC's decision for the aircraft handed over (the
+            # filter's wind estimate shared; the homing waypoint without an MPC), every other
+            # aircraft keeping the policy's waypoint.
+            handed = np.flatnonzero(memory.homebound & (state[:, S_STATUS] == FLYING))
             if self._mpc is None:
-                home = self._homing(state, planned)
-                for i in homed:
-                    planned[i] = home[i]
+                planned[handed] = self._homing(state, planned)[handed]
             else:
                 self._share_wind_estimate()
                 decided = np.asarray(self._mpc.act(view), dtype=np.float64)
-                for i in homed:
-                    planned[i] = decided[i]
-        outcome = self._check(state, planned)
-        if outcome[0] is None:
-            self._remember(view, outcome[3], outcome[4])
-            if not homed:
-                return proposal
+                planned[handed] = decided[handed]
+            outcome = self._check(state, planned)
             counts["shield_homing_decisions"] += 1
-            return self._apply(proposal, planned, flying)
+            if outcome[0] is None:
+                memory.remember(view.time_s + self.period_s, outcome[3], outcome[4])
+                return self._apply(proposal, planned, flying)
+        else:
+            outcome = (int(self._predictor.survived[0]), int(self._predictor.survived[0]) >= self._period_steps,
+                       self._predictor.blamed[0].copy(), None, None)
         survived, period1_ok, blamed = outcome[0], outcome[1], outcome[2]
         counts["shield_filtered"] += 1
-        if homed:
-            counts["shield_homing_decisions"] += 1
         if period1_ok:
             counts["shield_filtered_for_lookahead"] += 1
         # Unsafe: tier by tier (ALTERNATIVE_KINDS), the alternatives in the order they would
@@ -317,10 +326,10 @@ class SafetyFilter:
             displacement = np.hypot(*(candidates - planned[None]).transpose(2, 0, 1)).sum(axis=1)
             tried.append((candidates, changed))
             ordered = np.ascontiguousarray(candidates[np.lexsort((displacement, changed.sum(axis=1)))], dtype=np.float64)
-            index = self._predictor.first_safe(state, ordered, self._wind_estimate_kt)
+            index = self._predictor.first_safe(state, ordered, memory.wind_kt)
             if index != NONE_SAFE:
                 counts[f"shield_{kind}_changes"] += 1
-                self._remember(view, self._predictor.positions.copy(), self._predictor.alive.copy())
+                memory.remember(view.time_s + self.period_s, self._predictor.positions, self._predictor.alive)
                 return self._apply(proposal, ordered[index], flying)
         if self._mpc is not None:
             counts["shield_mpc_fallbacks"] += 1
@@ -331,7 +340,7 @@ class SafetyFilter:
             if survived_m[0] < self._full_steps():
                 counts["shield_unresolved"] += 1
             counts["shield_aircraft_changed"] += int((np.array(flying) & (applied != proposal).any(axis=1)).sum())
-            self._remember(view, positions_m[0], alive_m[0])
+            memory.remember(view.time_s + self.period_s, positions_m[0], alive_m[0])
             return applied
         counts["shield_unresolved"] += 1
         candidates, changed = (np.concatenate(parts) for parts in zip(*tried))
@@ -340,7 +349,7 @@ class SafetyFilter:
         best = int(np.lexsort((displacement, changed.sum(axis=1), -survived_c))[0])
         if survived_c[best] <= survived:
             return self._apply(proposal, planned, flying)  # no alternative stays safe longer than the plan
-        self._predicted_positions = None  # a prediction cut short at a breach says nothing of the wind
+        memory.forget()  # a prediction cut short at a breach says nothing of the wind
         return self._apply(proposal, candidates[best], flying)
 
     def episode_info(self) -> dict[str, Any]:
@@ -348,7 +357,7 @@ class SafetyFilter:
         inner = getattr(self.policy, "episode_info", None)
         info = dict(inner()) if callable(inner) else {}
         info.update(self._counts)
-        info["shield_wind_estimate_kt"] = [float(w) for w in self._wind_estimate_kt]
+        info["shield_wind_estimate_kt"] = self._memory.wind_kt.tolist()
         return info
 
     # -- internals ----------------------------------------------------------------------
@@ -370,7 +379,7 @@ class SafetyFilter:
         the first period). Unsafe: (integration steps it stayed safe, whether the first
         period was safe, the aircraft the breach involved (N,), None, None)."""
         predictor = self._predictor
-        if predictor.first_safe(state, np.ascontiguousarray(planned[None]), self._wind_estimate_kt,
+        if predictor.first_safe(state, np.ascontiguousarray(planned[None]), self._memory.wind_kt,
                                 checked=False) != NONE_SAFE:
             return None, True, None, predictor.positions.copy(), predictor.alive.copy()
         survived = int(predictor.survived[0])
@@ -388,7 +397,7 @@ class SafetyFilter:
         n_worlds = waypoints.shape[0]
         states = np.repeat(base_state[None], n_worlds, axis=0)
         flying0 = base_state[:, S_STATUS] == FLYING
-        wind = np.repeat(self._wind_estimate_kt[None], n_worlds, axis=0)
+        wind = np.repeat(self._memory.wind_kt[None], n_worlds, axis=0)
         survived = np.zeros(n_worlds, dtype=np.int64)
         safe = np.ones(n_worlds, dtype=bool)
         positions = alive = None
@@ -424,26 +433,6 @@ class SafetyFilter:
             # ``out`` is also what the others keep: their rows are read back unchanged.
             _homing_waypoints(world, out, self.home_distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm, out)
         return home[0] if one else home
-
-    def _stalled(self, time_s: float, rows: list[list[float]], flying: list[bool]) -> list[int]:
-        """The flying aircraft the stall rule hands to the MPC: those that, over the last
-        ``stall_periods`` periods flown, came less than ``stall_progress_nm`` closer to
-        their destination (holding, circling, flown away by the policy), from then on until
-        they arrive."""
-        if self.stall_progress_nm is None:
-            return []
-        distances = [math.hypot(row[_DEST_X] - row[_X], row[_DEST_Y] - row[_Y]) for row in rows]
-        history = self._distance_history
-        if history and abs(time_s - history[-1][0] - self.period_s) > 1e-6:
-            history.clear()  # not one period since the last decision: start the window again
-        history.append((time_s, distances))
-        if len(history) > self.stall_periods:
-            then = history.pop(0)[1]
-            for i, (now, before) in enumerate(zip(distances, then)):
-                if flying[i] and not self._homebound[i] and now > before - self.stall_progress_nm:
-                    self._homebound[i] = True
-                    self._counts["shield_stalled_aircraft"] += 1
-        return [i for i, bound in enumerate(self._homebound) if bound and flying[i]]
 
     def _alternatives(
         self, view: WorldView, planned: np.ndarray, blamed: np.ndarray, kind: str
@@ -482,35 +471,12 @@ class SafetyFilter:
         return np.where(flying[None, :, None], variants, planned[None]), np.repeat(flying[None], SAMPLED_ALTERNATIVES,
                                                                                    axis=0)
 
-    def _remember(self, view: WorldView, positions: np.ndarray, alive: np.ndarray) -> None:
-        """Keep where the applied waypoints are predicted to put the aircraft after one period."""
-        self._predicted_positions = positions.tolist()
-        self._predicted_flying = alive.tolist()
-        self._predicted_time_s = view.time_s + self.period_s
-
-    def _update_wind_estimate(self, view: WorldView, rows: list[list[float]], flying: list[bool]) -> None:
-        """Correct the wind estimate by the drift from the last prediction (the MPC's
-        "estimated" wind model)."""
-        if self._predicted_positions is None or abs(view.time_s - self._predicted_time_s) > 1e-6:
-            return
-        drift_x = drift_y = 0.0
-        count = 0
-        for row, now, predicted, then in zip(rows, flying, self._predicted_positions, self._predicted_flying):
-            if now and then:
-                drift_x += row[_X] - predicted[0]
-                drift_y += row[_Y] - predicted[1]
-                count += 1
-        if count:
-            hours = self.period_s / SECONDS_PER_HOUR
-            self._wind_estimate_kt = self._wind_estimate_kt + np.array([drift_x, drift_y]) / count / hours
-        self._predicted_positions = None
-
     def _share_wind_estimate(self) -> None:
         """Hand the filter's wind estimate to the fallback MPC, which is not called every
         period and so cannot keep an estimate of its own."""
         setter = getattr(self._mpc, "set_wind_estimate", None)
         if callable(setter):
-            setter(self._wind_estimate_kt)
+            setter(self._memory.wind_kt.copy())
 
 
 def summarize_interventions(infos: list[dict[str, Any]]) -> dict[str, Any] | None:

@@ -31,14 +31,24 @@ from atc_nf_env.kernel import (
     S_DEST_Y,
     S_HEADING,
     S_STATUS,
+    S_WP_X,
+    S_WP_Y,
     S_X,
     S_Y,
 )
 from atc_nf_env.nf import FAST_MATH_FLAGS
+from atc_nf_env.units import SECONDS_PER_HOUR
 
 #: ``PlanPredictor.first_safe`` when no candidate is safe.
 NONE_SAFE = -1
 _NON_FINITE = -2
+_NON_FINITE_MESSAGE = ("the safety filter's prediction produced NaN or inf; the scenario or gains lie outside the "
+                       "range the NF is calibrated for")
+
+#: ``PlanPredictor.screen``'s verdicts on a proposal: safe as proposed, unsafe, some
+#: aircraft handed to the stall rule (not predicted: the caller changes their waypoints
+#: first), no aircraft flying (nothing to check), a NaN or inf in the proposal.
+SCREEN_SAFE, SCREEN_UNSAFE, SCREEN_HOMED, SCREEN_NONE_FLYING, SCREEN_NOT_FINITE = range(5)
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
@@ -227,6 +237,163 @@ def _first_safe(
     return NONE_SAFE
 
 
+class DecisionMemory:
+    """What the safety filter carries from one decision to the next, as arrays that the
+    compiled ``PlanPredictor.screen`` reads and updates in place.
+
+    Attributes (N aircraft, P = ``stall_periods``):
+        wind_kt: (2,) the wind estimate (east, north), kt.
+        predicted: (N, 2) where the applied waypoints were predicted to put each aircraft
+            after one period, nm, and ``predicted_alive`` (N,) whether it was still flying;
+            valid while ``timing[0]`` is 1, for the decision at ``timing[1]`` s.
+        distances: (P + 1, N) each aircraft's distance to its destination at the last
+            decisions one period apart, nm (the stall rule's window), at the times
+            ``history_time`` (P + 1,) s; ``counts[0]`` rows are filled.
+        homebound: (N,) aircraft handed over by the stall rule until they arrive.
+        counts: (2,) int64: the rows of ``distances`` filled, and the aircraft handed over
+            by the stall rule so far.
+    """
+
+    def __init__(self, n_aircraft: int, stall_periods: int) -> None:
+        self.wind_kt = np.zeros(2)
+        self.predicted = np.zeros((n_aircraft, 2))
+        self.predicted_alive = np.zeros(n_aircraft, dtype=np.bool_)
+        self.timing = np.zeros(2)
+        self.distances = np.zeros((stall_periods + 1, n_aircraft))
+        self.history_time = np.zeros(stall_periods + 1)
+        self.homebound = np.zeros(n_aircraft, dtype=np.bool_)
+        self.counts = np.zeros(2, dtype=np.int64)
+        self.planned = np.zeros((1, n_aircraft, 2))
+
+    def remember(self, time_s: float, positions: np.ndarray, alive: np.ndarray) -> None:
+        """Keep the positions (N, 2) nm and flying flags (N,) predicted for ``time_s``."""
+        self.predicted[:] = positions
+        self.predicted_alive[:] = alive
+        self.timing[0] = 1.0
+        self.timing[1] = time_s
+
+    def forget(self) -> None:
+        """No prediction to correct the wind estimate by at the next decision."""
+        self.timing[0] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _screen(
+    state: np.ndarray,
+    proposal: np.ndarray,
+    time_s: float,
+    period_s: float,
+    stall_on: bool,
+    stall_progress_nm: float,
+    wind: np.ndarray,
+    timing: np.ndarray,
+    predicted: np.ndarray,
+    predicted_alive: np.ndarray,
+    distances: np.ndarray,
+    history_time: np.ndarray,
+    homebound: np.ndarray,
+    counts: np.ndarray,
+    planned: np.ndarray,
+    params: np.ndarray,
+    period_steps: int,
+    lookahead_periods: int,
+    home_distance_nm: float,
+    max_turn_rad: float,
+    limit_nm: float,
+    world: np.ndarray,
+    home: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    per_aircraft: np.ndarray,
+    per_aircraft_counts: np.ndarray,
+    los_pairs: np.ndarray,
+    record: np.ndarray,
+    survived: np.ndarray,
+    blamed: np.ndarray,
+    positions: np.ndarray,
+    alive: np.ndarray,
+) -> int:
+    """The safety filter's decision up to its verdict on the proposal, in one compiled call
+    (``PlanPredictor.screen``): the wind estimate corrected by the drift from the last
+    prediction, the stall rule's window, the planned waypoints (the proposal for the
+    flying aircraft, the current waypoints for the others) and, unless the stall rule
+    hands an aircraft over, their prediction. Compiled without fast-math: the finiteness
+    checks would be compiled away under no-NaN, no-inf flags, and the sums must round as
+    the Python they replace did."""
+    n = state.shape[0]
+    for i in range(n):
+        if not (math.isfinite(proposal[i, 0]) and math.isfinite(proposal[i, 1])):
+            return SCREEN_NOT_FINITE
+    # The wind estimate: the mean drift of the aircraft from where the last prediction put
+    # them, per period (the MCMC-MPC's "estimated" wind model).
+    if timing[0] != 0.0 and abs(time_s - timing[1]) <= 1e-6:
+        drift_x = 0.0
+        drift_y = 0.0
+        count = 0
+        for i in range(n):
+            if state[i, S_STATUS] == FLYING and predicted_alive[i]:
+                drift_x += state[i, S_X] - predicted[i, 0]
+                drift_y += state[i, S_Y] - predicted[i, 1]
+                count += 1
+        if count:
+            hours = period_s / SECONDS_PER_HOUR
+            wind[0] = wind[0] + drift_x / count / hours
+            wind[1] = wind[1] + drift_y / count / hours
+        timing[0] = 0.0
+    any_flying = False
+    for i in range(n):
+        flying = state[i, S_STATUS] == FLYING
+        any_flying |= flying
+        planned[0, i, 0] = proposal[i, 0] if flying else state[i, S_WP_X]
+        planned[0, i, 1] = proposal[i, 1] if flying else state[i, S_WP_Y]
+    if not any_flying:
+        return SCREEN_NONE_FLYING
+    homed = False
+    if stall_on:
+        # The stall rule's window: one row per decision, restarted where a decision is not
+        # one period after the last; an aircraft no closer to home than stall_periods
+        # periods ago is handed over until it arrives.
+        rows = counts[0]
+        if rows > 0 and abs(time_s - history_time[rows - 1] - period_s) > 1e-6:
+            rows = 0
+        history_time[rows] = time_s
+        for i in range(n):
+            distances[rows, i] = math.hypot(state[i, S_DEST_X] - state[i, S_X], state[i, S_DEST_Y] - state[i, S_Y])
+        rows += 1
+        if rows > distances.shape[0] - 1:
+            for i in range(n):
+                if (state[i, S_STATUS] == FLYING and not homebound[i]
+                        and distances[rows - 1, i] > distances[0, i] - stall_progress_nm):
+                    homebound[i] = True
+                    counts[1] += 1
+            for r in range(rows - 1):
+                history_time[r] = history_time[r + 1]
+                for i in range(n):
+                    distances[r, i] = distances[r + 1, i]
+            rows -= 1
+        counts[0] = rows
+        for i in range(n):
+            homed |= homebound[i] and state[i, S_STATUS] == FLYING
+    if homed:
+        return SCREEN_HOMED
+    index = _first_safe(
+        state, planned, wind, params, period_steps, lookahead_periods, home_distance_nm, max_turn_rad, limit_nm,
+        world, home, grad, command, per_aircraft[0], per_aircraft[1], per_aircraft[2], per_aircraft_counts[0],
+        per_aircraft_counts[1], los_pairs, record, survived, blamed, positions, alive,
+    )
+    if index == _NON_FINITE:
+        return _NON_FINITE
+    if index == NONE_SAFE:
+        return SCREEN_UNSAFE
+    for i in range(n):
+        predicted[i, 0] = positions[i, 0]
+        predicted[i, 1] = positions[i, 1]
+        predicted_alive[i] = alive[i]
+    timing[0] = 1.0
+    timing[1] = time_s + period_s
+    return SCREEN_SAFE
+
+
 def _check_inputs(state: np.ndarray, candidates: np.ndarray, wind_kt: np.ndarray) -> None:
     """``PlanPredictor.first_safe``'s inputs: exact float64 C-contiguous arrays of matching
     shapes, all finite (a few attribute look-ups on the common path)."""
@@ -298,8 +465,8 @@ class PlanPredictor:
             self._home = np.zeros((n, 2))
             self._grad = np.zeros((n, n, 2))
             self._command = np.zeros((n, N_COMMAND))
-            self._per_aircraft = [np.zeros(n) for _ in range(3)]
-            self._counts = [np.zeros(n, dtype=np.int64) for _ in range(2)]
+            self._per_aircraft = np.zeros((3, n))  # lowest and highest airspeed, worst excursion
+            self._counts = np.zeros((2, n), dtype=np.int64)  # violation steps, steps flown
             self._los_pairs = np.zeros((n, n), dtype=np.uint8)
             self._record = np.zeros((0, n, N_RECORD))
             self.positions = np.zeros((n, 2))
@@ -344,11 +511,49 @@ class PlanPredictor:
             steps_flown, self._los_pairs, self._record, self.survived, self.blamed, self.positions, self.alive,
         )
         if index == _NON_FINITE:
-            raise FloatingPointError(
-                "the safety filter's prediction produced NaN or inf; the scenario or gains lie outside the "
-                "range the NF is calibrated for"
-            )
+            raise FloatingPointError(_NON_FINITE_MESSAGE)
         return index
 
+    def screen(
+        self,
+        state: np.ndarray,
+        proposal: np.ndarray,
+        time_s: float,
+        period_s: float,
+        memory: DecisionMemory,
+        stall_progress_nm: float | None,
+    ) -> int:
+        """The safety filter's routine decision in one compiled call: correct
+        ``memory.wind_kt`` by the drift from the last prediction, update the stall rule's
+        window (``stall_progress_nm`` None: no rule), plan the proposal (N, 2) nm for the
+        flying aircraft (``memory.planned[0]``) and, unless the stall rule hands an aircraft
+        over, predict it from ``state`` (N, N_STATE), a C-contiguous float64 array, at
+        ``time_s`` s, with periods of ``period_s`` s. Safe: ``memory`` remembers where the
+        prediction puts the aircraft after one period.
 
-__all__ = ["NONE_SAFE", "PlanPredictor"]
+        Returns:
+            A ``SCREEN_*`` verdict. ``SCREEN_UNSAFE``: ``survived[0]`` and ``blamed[0]`` as
+            after ``first_safe``.
+
+        Raises:
+            FloatingPointError: if the flight produced a NaN or inf state.
+        """
+        n = state.shape[0]
+        self._buffers(n, 1)
+        self.survived[0] = -1
+        grad, command = self._grad, self._command
+        verdict = _screen(
+            state, proposal, time_s, period_s, stall_progress_nm is not None,
+            0.0 if stall_progress_nm is None else stall_progress_nm, memory.wind_kt, memory.timing,
+            memory.predicted, memory.predicted_alive, memory.distances, memory.history_time, memory.homebound,
+            memory.counts, memory.planned, self.params, self.period_steps, self.lookahead_periods, *self._homing,
+            self._world, self._home, grad, command, self._per_aircraft, self._counts, self._los_pairs,
+            self._record, self.survived, self.blamed, self.positions, self.alive,
+        )
+        if verdict == _NON_FINITE:
+            raise FloatingPointError(_NON_FINITE_MESSAGE)
+        return verdict
+
+
+__all__ = ["NONE_SAFE", "SCREEN_HOMED", "SCREEN_NONE_FLYING", "SCREEN_NOT_FINITE", "SCREEN_SAFE", "SCREEN_UNSAFE",
+           "DecisionMemory", "PlanPredictor"]

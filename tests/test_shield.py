@@ -477,3 +477,55 @@ def test_first_safe_of_a_batch_is_the_first_candidate_safe_alone(scenario, seed,
         assert batch_survived[m] == alone[m][1]
         if not alone[m][0]:
             assert np.array_equal(batch_blamed[m], alone[m][2])
+
+
+def _screen_setup(n_aircraft: int = 3, stall_periods: int = 2):
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.shield_prediction import DecisionMemory, PlanPredictor
+    from atc_nf_env.simulation import initial_state
+
+    scenario = make_scenario(f"converging-{n_aircraft}")
+    config = SimConfig()
+    params = config.to_params(scenario.workspace_radius_nm, stop_on_violation=True)
+    predictor = PlanPredictor(params, 60, 2, 130.0, np.pi / 3, 240.0)
+    state = np.ascontiguousarray(initial_state(scenario)[0])
+    to_dest = scenario.dest_xy - state[:, :2]
+    proposal = state[:, :2] + 100.0 * to_dest / np.hypot(*to_dest.T)[:, None]
+    return predictor, DecisionMemory(n_aircraft, stall_periods), state, np.ascontiguousarray(proposal)
+
+
+def test_the_screen_corrects_the_wind_estimate_by_the_mean_drift_exactly():
+    from atc_nf_env.shield_prediction import SCREEN_SAFE
+
+    predictor, memory, state, proposal = _screen_setup()
+    memory.wind_kt[:] = (3.0, -1.5)
+    drift = np.array([[1.25, -0.5], [0.75, 2.0], [40.0, 40.0]])
+    memory.remember(600.0, state[:, :2] - drift, np.array([True, True, False]))  # the third was not flying
+    assert predictor.screen(state, proposal, 600.0, 300.0, memory, None) == SCREEN_SAFE
+    hours = 300.0 / 3600.0
+    expected = np.array([3.0, -1.5]) + np.array([1.25 + 0.75, -0.5 + 2.0]) / 2 / hours
+    assert np.array_equal(memory.wind_kt, expected)  # bit for bit: the same operations in the same order
+    # A decision at another time than the prediction's leaves the estimate alone.
+    before = memory.wind_kt.copy()
+    memory.remember(900.0, state[:, :2] - drift, np.ones(3, dtype=bool))
+    predictor.screen(state, proposal, 1200.0, 300.0, memory, None)
+    assert np.array_equal(memory.wind_kt, before)
+
+
+def test_the_screen_hands_over_an_aircraft_no_closer_to_home_after_the_window():
+    from atc_nf_env.kernel import S_DEST_X, S_X
+    from atc_nf_env.shield_prediction import SCREEN_HOMED, SCREEN_SAFE
+
+    predictor, memory, state, proposal = _screen_setup(stall_periods=2)
+    verdicts = []
+    for k in range(3):  # aircraft 0 drifting away from home, the others closing in
+        moved = state.copy()
+        moved[:, S_X] += 10.0 * k * np.sign(moved[:, S_DEST_X] - moved[:, S_X]) * np.array([-0.1, 1.0, 1.0])
+        verdicts.append(predictor.screen(moved, proposal, 300.0 * k, 300.0, memory, 0.0))
+    assert verdicts == [SCREEN_SAFE, SCREEN_SAFE, SCREEN_HOMED]
+    assert memory.homebound.tolist() == [True, False, False] and memory.counts[1] == 1
+    # A gap of more than one period restarts the window: no aircraft is handed over again.
+    fresh = _screen_setup(stall_periods=2)[1]
+    times = (0.0, 300.0, 900.0, 1200.0)
+    assert [predictor.screen(state, proposal, t, 300.0, fresh, 0.0) for t in times][-1] == SCREEN_SAFE
+    assert not fresh.homebound.any() and fresh.counts[1] == 0

@@ -1,24 +1,31 @@
-"""Before and after the kernel lost numba's reference counts, side by side on one machine.
+"""A build before a change and the working tree, side by side on one machine.
 
-``kernel._advance_world`` and ``kernel._advance_one`` are compiled without reference
-counts since commit 32bcca8 (``nf.NO_REFERENCE_COUNTS``). This script checks out the
-commit before it (``--before``, default 530130e) into a temporary git worktree and times
-the same workloads with each tree, in fresh processes that alternate round by round (the
-tree on ``PYTHONPATH`` is the one imported; each process warms up first, so compilation
-and cache loads stay out of the figures):
+This script checks out a commit (``--before``) into a temporary git worktree and times the
+same workloads with it and with the working tree, in fresh processes that alternate round
+by round (the tree on ``PYTHONPATH`` is the one imported; each process warms up first, so
+compilation and cache loads stay out of the figures). It measured:
+
+- the kernel without numba's reference counts (``nf.NO_REFERENCE_COUNTS``, since 32bcca8):
+  ``--before 530130e``;
+- the safety filter's routine decision in one compiled call (``PlanPredictor.screen``):
+  ``--before 2ac34f5 --what shield``.
+
+The workloads:
 
 - ``kernel``: one 5-min period of converging-4 and converging-6 per ``kernel.advance``
   call, B = 1 and B = 1000, in aircraft-steps per second;
-- ``shield``: ``finetuned_ppo`` inside the safety filter on converging-6 and random-6,
-  the mean decision over seeds 0..SEEDS-1;
+- ``shield``: ``finetuned_ppo`` inside the safety filter on each of ``--scenarios``, the
+  mean and the median decision over seeds 0..SEEDS-1;
 - ``mpc``: the MCMC-MPC's mean decision on converging-4 and converging-6, seeds
   0..MPC_SEEDS-1.
 
-Both trees fly the same trajectories bit for bit (``bench/kernel_trajectory_hash.py``);
-reported are medians over rounds of each tree's figure and of the per-round ratio
-after/before.
+For both changes the two trees fly the same trajectories bit for bit
+(``bench/kernel_trajectory_hash.py``; the full regeneration, ``bench/regenerate.sh``, gave
+every run's outcome unchanged); reported are medians over rounds of each tree's figure
+and of the per-round ratio after/before.
 
-Run: python bench/experiments/refcount_ab.py [--rounds 5] [--seeds 20] [--mpc-seeds 2]
+Run: python bench/experiments/build_ab.py --before COMMIT [--what kernel,shield,mpc] [--rounds 5]
+[--seeds 20] [--mpc-seeds 2] [--scenarios converging-4,converging-6,random-4,random-6]
 """
 
 from __future__ import annotations
@@ -38,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[2]
 WORKER = r"""
 import json, sys, time
 import numpy as np
-what, seeds, mpc_seeds = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+what, seeds, mpc_seeds, scenarios = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4].split(",")
 import atc_nf_env
 out = {"tree": atc_nf_env.__file__}
 if what == "kernel":
@@ -68,7 +75,7 @@ else:
     from atc_nf_env.scenarios import make_scenario
     if what == "shield":
         from atc_nf_env.shield import SafetyFilter
-        policy, cases, n_seeds = SafetyFilter(make_policy("agents/models/finetuned_ppo.zip")), ("converging-6", "random-6"), seeds
+        policy, cases, n_seeds = SafetyFilter(make_policy("agents/models/finetuned_ppo.zip")), scenarios, seeds
     else:
         policy, cases, n_seeds = make_policy("mpc"), ("converging-4", "converging-6"), mpc_seeds
     for name in cases:
@@ -77,14 +84,18 @@ else:
         for seed in range(n_seeds):
             times += list(run_episode(policy, make_scenario(name, seed=seed), seed=seed).decision_s)
         unit = "us" if what == "shield" else "ms"
-        out[f"{name} mean decision ({unit})"] = float(np.mean(times)) * (1e6 if unit == "us" else 1e3)
+        scale = 1e6 if unit == "us" else 1e3
+        out[f"{name} mean decision ({unit})"] = float(np.mean(times)) * scale
+        if what == "shield":
+            out[f"{name} median decision ({unit})"] = float(np.median(times)) * scale
 print(json.dumps(out))
 """
 
 
-def measure(tree: Path, what: str, seeds: int, mpc_seeds: int) -> dict[str, float]:
+def measure(tree: Path, what: str, seeds: int, mpc_seeds: int, scenarios: str) -> dict[str, float]:
     env = dict(os.environ, PYTHONPATH=str(tree))
-    result = subprocess.run([sys.executable, "-c", WORKER, what, str(seeds), str(mpc_seeds)], cwd=tree, env=env,
+    result = subprocess.run([sys.executable, "-c", WORKER, what, str(seeds), str(mpc_seeds), scenarios], cwd=tree,
+                            env=env,
                             capture_output=True, text=True, check=True)
     figures = json.loads(result.stdout.strip().splitlines()[-1])
     imported = Path(figures.pop("tree")).resolve()
@@ -95,11 +106,13 @@ def measure(tree: Path, what: str, seeds: int, mpc_seeds: int) -> dict[str, floa
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--before", default="530130e", help="the commit before the change")
+    parser.add_argument("--before", required=True, help="the commit before the change (530130e, 2ac34f5, ...)")
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--seeds", type=int, default=20, help="shielded episodes per scenario and round")
     parser.add_argument("--mpc-seeds", type=int, default=2, help="MPC episodes per scenario and round")
     parser.add_argument("--what", default="kernel,shield,mpc")
+    parser.add_argument("--scenarios", default="converging-4,converging-6,random-4,random-6",
+                        help="the shielded workload's scenarios")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         before = Path(tmp) / "before"
@@ -111,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
                 for round_ in range(args.rounds):
                     order = (("before", before), ("after", ROOT))
                     for label, tree in order if round_ % 2 == 0 else order[::-1]:
-                        for key, value in measure(tree, what, args.seeds, args.mpc_seeds).items():
+                        for key, value in measure(tree, what, args.seeds, args.mpc_seeds, args.scenarios).items():
                             rows.setdefault(key, {"before": [], "after": []})[label].append(value)
                 print(f"{what}: medians over {args.rounds} rounds (before = {args.before}, after = the working tree)")
                 for key, values in rows.items():
