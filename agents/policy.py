@@ -36,6 +36,7 @@ parameter-shared PPO model on the default environment settings.
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -56,6 +57,7 @@ from atc_nf_env.config import SimConfig
 from atc_nf_env.envs import EnvConfig
 from atc_nf_env.envs.actions import ActionMapping, waypoints_for_state
 from atc_nf_env.envs.observations import ObservationSpec
+from atc_nf_env.kernel import N_STATE
 from atc_nf_env.scenarios import Scenario
 from atc_nf_env.simulation import WorldView
 from atc_nf_env.units import DECISION_PERIOD_S
@@ -253,11 +255,16 @@ def compiled_forward(model: Any) -> Callable[[np.ndarray], np.ndarray] | None:
             raise ValueError(f"observations of shape {np.shape(obs)}; expected (B, {obs_dim})")
         out = np.empty((x.shape[0], n_actions), dtype=np.float32)
         if not compute(x, out):
-            raise ValueError("observations contain NaN or inf (after conversion to float32); "
-                             "all must be finite")
+            raise ValueError(_NOT_FINITE_OBSERVATIONS)
         return out
 
+    # For SB3AgentPolicy.act's path with buffers of its own: compute(x (B, D) float32
+    # C-contiguous, out (B, n_actions) float32) -> False if x holds a NaN or inf.
+    forward.compute = compute  # type: ignore[attr-defined]
     return forward
+
+
+_NOT_FINITE_OBSERVATIONS = "observations contain NaN or inf (after conversion to float32); all must be finite"
 
 
 # ------------------------------------------------------------------ the policy
@@ -286,6 +293,22 @@ _WARNED_OUTSIDE: set[str] = set()
 
 class OutsideOperatingRangeWarning(UserWarning):
     """A model flies traffic or wind outside the range it was trained on."""
+
+
+@dataclass
+class _DecisionBuffers:
+    """``SB3AgentPolicy.act``'s arrays, kept between decisions of one scenario: the state's
+    shape (N, N_STATE) they fit, the time fraction (1,), a zero wind (1, 2), observations
+    (1, N, D) float32, nearest distances (1, N), actions (N, 2) float32 and as float64
+    (1, N, 2)."""
+
+    shape: tuple[int, int]
+    time_fraction: np.ndarray
+    no_wind: np.ndarray
+    obs: np.ndarray
+    nearest: np.ndarray
+    actions32: np.ndarray
+    actions64: np.ndarray
 
 
 class SB3AgentPolicy:
@@ -339,6 +362,7 @@ class SB3AgentPolicy:
             self.n_slots = int(slots)
         self._forward = compiled_forward(self.model) if fast else None
         self._spec: ObservationSpec | None = None
+        self._buffers: _DecisionBuffers | None = None
         self._warm = False
 
     def check_operating_conditions(self, n_aircraft: int, wind_sigma_mps: float | None) -> None:
@@ -379,6 +403,14 @@ class SB3AgentPolicy:
         self._spec = ObservationSpec.for_config(config, self.n_neighbours, False)
         self._workspace_radius_nm = float(scenario.workspace_radius_nm)
         self._aircraft_radius_nm = float(config.aircraft_radius_nm)
+        self._buffers = None
+        if self.mode == "shared" and self._forward is not None:
+            n, dim = scenario.n_aircraft, self._spec.dim
+            self._buffers = _DecisionBuffers(
+                shape=(n, N_STATE), time_fraction=np.zeros(1), no_wind=np.zeros((1, 2)),
+                obs=np.zeros((1, n, dim), dtype=np.float32), nearest=np.zeros((1, n)),
+                actions32=np.zeros((n, 2), dtype=np.float32), actions64=np.zeros((1, n, 2)),
+            )
         if not self._warm:  # load the compiled functions now, not inside the first timed act()
             from atc_nf_env.simulation import initial_state
 
@@ -403,6 +435,19 @@ class SB3AgentPolicy:
         """Waypoints (N, 2), nm: each flying aircraft's action mapped with the env's mapping;
         aircraft no longer flying keep their waypoint."""
         state = view.state
+        buffers = self._buffers
+        if (buffers is not None and type(state) is np.ndarray and state.dtype == np.float64
+                and state.shape == buffers.shape and state.flags.c_contiguous):
+            # The same compiled observation, forward pass and mapping as below, on buffers
+            # kept between decisions: the Python around them was a third of a decision.
+            world = state[None]
+            buffers.time_fraction[0] = min(1.0, view.time_s / self.time_limit_s)
+            self._spec.observe_into(world, buffers.time_fraction, buffers.no_wind, buffers.obs, buffers.nearest)
+            if not self._forward.compute(buffers.obs[0], buffers.actions32):
+                raise ValueError(_NOT_FINITE_OBSERVATIONS)
+            buffers.actions64[0] = buffers.actions32
+            return waypoints_for_state(buffers.actions64, world, self.mapping, self._workspace_radius_nm,
+                                       self._aircraft_radius_nm)[0]
         obs = self.observe(view)
         n = state.shape[0]
         if self.mode == "shared":

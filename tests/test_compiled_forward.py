@@ -169,3 +169,33 @@ def test_the_benchs_numpy_yardstick_computes_the_same_actions(model: str) -> Non
     obs = np.random.default_rng(8).uniform(-2, 2, (40, dim)).astype(np.float32)
     obs[:, 8::5] = obs[:, 8::5] > 0  # slot masks of the deep-sets layout (own features: 8)
     np.testing.assert_allclose(numpy_actions(policy.model)(obs), policy.actions(obs), atol=1e-5)
+
+
+@pytest.mark.parametrize("model", ["finetuned_ppo.zip", "deepsets_mixed.zip"])
+def test_act_on_kept_buffers_gives_the_waypoints_of_the_general_path_bit_for_bit(model: str) -> None:
+    """``SB3AgentPolicy.act`` decides on buffers it keeps between decisions where the state
+    fits them; elsewhere (a state of another shape or layout) it takes the general path.
+    Both must give the same waypoints, and a returned array must not change afterwards."""
+    pytest.importorskip("stable_baselines3")
+    from agents.policy import SB3AgentPolicy
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.kernel import S_STATUS, S_X
+    from atc_nf_env.scenarios import make_scenario
+    from atc_nf_env.simulation import WorldView, initial_state
+
+    policy = SB3AgentPolicy(ROOT / "agents" / "models" / model)
+    scenario = make_scenario("random-6", seed=3)
+    policy.reset(scenario, SimConfig(), 0)
+    assert policy._buffers is not None
+    rng = np.random.default_rng(11)
+    kept = []
+    for k in range(5):
+        state = initial_state(scenario)[0]
+        state[:, S_X] += rng.normal(0.0, 30.0, len(state))
+        state[k % len(state), S_STATUS] = 1.0  # one aircraft home: it keeps its waypoint
+        view = WorldView(time_s=300.0 * k, state=state, scenario=scenario)
+        fast = policy.act(view)
+        general = policy.act(WorldView(time_s=300.0 * k, state=np.asfortranarray(state), scenario=scenario))
+        assert np.array_equal(fast, general)
+        kept.append((fast, fast.copy()))
+    assert all(np.array_equal(a, b) for a, b in kept)

@@ -292,6 +292,21 @@ class ObservationSpec:
         """
         return self.observe_with_nearest(state, time_fraction, wind_kt, n_slots)[0]
 
+    def observe_into(
+        self,
+        state: np.ndarray,
+        time_fraction: np.ndarray,
+        wind_kt: np.ndarray,
+        out: np.ndarray,
+        nearest: np.ndarray,
+    ) -> None:
+        """``observe_with_nearest`` into the caller's buffers, for a caller that decides
+        often and keeps them (``agents.policy.SB3AgentPolicy``): ``state`` (B, N, N_STATE),
+        ``time_fraction`` (B,) and ``wind_kt`` (B, 2) C-contiguous float64, ``out`` (B, M,
+        dim) float32 and ``nearest`` (B, M) float64 with M >= N; nothing is converted or
+        allocated."""
+        _observe(state, time_fraction, wind_kt, self.n_neighbours, self.expose_wind, self._scales, out, nearest)
+
     def observe_with_nearest(
         self,
         state: np.ndarray,
