@@ -261,6 +261,13 @@ class SafetyFilter:
             state = initial_state(scenario, 2)
             kernel.advance(state, state[:, :, S_WP_X : S_WP_Y + 1].copy(), np.zeros((2, 2)), config.dt_s,
                            self._params, scratch=kernel.KernelScratch())
+            # And the structured alternatives' code (a cache load of several ms otherwise
+            # falls into the first decision changed).
+            world = np.ascontiguousarray(state[0])
+            for joint in (False, True):
+                _structured_alternatives(world, world[:, S_WP_X : S_WP_Y + 1].copy(), np.zeros(1, dtype=np.int64), joint,
+                                         _JOINT_TURNS if joint else _TURNS, _DISTANCES, _DISTANCES,
+                                         self.recovery_angle_rad, self._waypoint_limit_nm)
             SafetyFilter._batch_warm = True
 
     def act(self, view: WorldView) -> np.ndarray:
