@@ -529,3 +529,97 @@ def test_the_screen_hands_over_an_aircraft_no_closer_to_home_after_the_window():
     times = (0.0, 300.0, 900.0, 1200.0)
     assert [predictor.screen(state, proposal, t, 300.0, fresh, 0.0) for t in times][-1] == SCREEN_SAFE
     assert not fresh.homebound.any() and fresh.counts[1] == 0
+
+
+class _PythonMemory:
+    """The filter's wind estimate and stall rule as Python computed them before they moved
+    into ``PlanPredictor.screen`` (the reference ``screen`` must match bit for bit)."""
+
+    def __init__(self, n: int, stall_periods: int, period_s: float, progress_nm: float) -> None:
+        self.wind = np.zeros(2)
+        self.predicted = None
+        self.predicted_flying = None
+        self.predicted_time = -1.0
+        self.history: list = []
+        self.homebound = [False] * n
+        self.stalled = 0
+        self.stall_periods, self.period_s, self.progress = stall_periods, period_s, progress_nm
+
+    def decide(self, state: np.ndarray, time_s: float) -> bool:
+        """The old bookkeeping of one decision; returns whether an aircraft is handed over."""
+        import math
+
+        from atc_nf_env.kernel import FLYING, S_DEST_X, S_DEST_Y, S_STATUS, S_X, S_Y
+
+        rows = state.tolist()
+        flying = [row[S_STATUS] == FLYING for row in rows]
+        if self.predicted is not None and abs(time_s - self.predicted_time) <= 1e-6:
+            dx = dy = 0.0
+            count = 0
+            for row, now, predicted, then in zip(rows, flying, self.predicted, self.predicted_flying):
+                if now and then:
+                    dx += row[S_X] - predicted[0]
+                    dy += row[S_Y] - predicted[1]
+                    count += 1
+            if count:
+                self.wind = self.wind + np.array([dx, dy]) / count / (self.period_s / 3600.0)
+            self.predicted = None
+        if not any(flying):
+            return False
+        distances = [math.hypot(r[S_DEST_X] - r[S_X], r[S_DEST_Y] - r[S_Y]) for r in rows]
+        if self.history and abs(time_s - self.history[-1][0] - self.period_s) > 1e-6:
+            self.history.clear()
+        self.history.append((time_s, distances))
+        if len(self.history) > self.stall_periods:
+            then = self.history.pop(0)[1]
+            for i, (now, before) in enumerate(zip(distances, then)):
+                if flying[i] and not self.homebound[i] and now > before - self.progress:
+                    self.homebound[i] = True
+                    self.stalled += 1
+        return any(bound and flying[i] for i, bound in enumerate(self.homebound))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n=st.integers(2, 5),
+    seed=st.integers(0, 2**31 - 1),
+    stall_periods=st.integers(1, 4),
+    gaps=st.lists(st.sampled_from([300.0, 300.0, 300.0, 600.0, 450.0]), min_size=3, max_size=9),
+)
+def test_the_compiled_screen_keeps_the_wind_estimate_and_stall_rule_of_the_python_it_replaced(
+    n, seed, stall_periods, gaps
+):
+    """Random decision sequences (aircraft wandering, arriving, decisions off the period
+    grid, predictions remembered or not): ``PlanPredictor.screen`` updates the wind estimate
+    and hands aircraft over exactly as the filter's former Python did."""
+    from atc_nf_env.kernel import ARRIVED, S_STATUS, S_X, S_Y
+    from atc_nf_env.shield_prediction import SCREEN_HOMED, SCREEN_NONE_FLYING, SCREEN_SAFE, DecisionMemory
+
+    predictor, _, state, proposal = _screen_setup(n_aircraft=n, stall_periods=stall_periods)
+    memory = DecisionMemory(n, stall_periods)
+    reference = _PythonMemory(n, stall_periods, 300.0, 0.0)
+    rng = np.random.default_rng(seed)
+    time_s = 0.0
+    for gap in gaps:
+        state = state.copy()
+        state[:, S_X] += rng.normal(0.0, 20.0, n)
+        state[:, S_Y] += rng.normal(0.0, 20.0, n)
+        state[rng.uniform(size=n) < 0.1, S_STATUS] = ARRIVED
+        if rng.uniform() < 0.7:  # a prediction remembered for this decision (or another time)
+            when = time_s if rng.uniform() < 0.8 else time_s + 1.0
+            positions = state[:, S_X : S_Y + 1] + rng.normal(0.0, 2.0, (n, 2))
+            alive = rng.uniform(size=n) < 0.9
+            memory.remember(when, positions, alive)
+            reference.predicted, reference.predicted_flying = positions.tolist(), alive.tolist()
+            reference.predicted_time = when
+        handed = reference.decide(state, time_s)
+        verdict = predictor.screen(np.ascontiguousarray(state), proposal, time_s, 300.0, memory, 0.0)
+        assert np.array_equal(memory.wind_kt, reference.wind)
+        assert memory.homebound.tolist() == reference.homebound and memory.counts[1] == reference.stalled
+        assert (verdict == SCREEN_HOMED) == handed
+        assert (verdict == SCREEN_NONE_FLYING) == (not (state[:, S_STATUS] == 0.0).any())
+        if verdict == SCREEN_SAFE:  # the filter remembered its prediction, as before
+            reference.predicted = predictor.positions.tolist()
+            reference.predicted_flying = predictor.alive.tolist()
+            reference.predicted_time = time_s + 300.0
+        time_s += gap
