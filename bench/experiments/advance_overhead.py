@@ -1,0 +1,69 @@
+"""How much of ``kernel.advance`` at B = 1 is the Python around its compiled call.
+
+``bench/bench_kernel.py`` times one 5-min period of converging-N per ``advance`` call. At
+B = 1 the call's Python (its quick checks, the ``Trace`` and its ten arrays, numba's
+dispatch of 18 arguments) is a share of that time that no kernel work can remove. This
+probe times ``advance`` and its compiled ``_advance_checked`` alone on preallocated arrays,
+alternately: medians over 31 rounds of the medians of 200 calls each, warm.
+
+Run: python bench/experiments/advance_overhead.py
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from atc_nf_env import kernel
+from atc_nf_env.config import SimConfig
+from atc_nf_env.scenarios import make_scenario
+from atc_nf_env.simulation import initial_state
+
+TRACE_FIELDS = ("min_airspeed_kt", "max_airspeed_kt", "violation_steps", "worst_excursion_kt", "steps_flown",
+                "los_pairs", "min_separation_nm", "steps_done", "violated", "record")
+
+
+def measure(n: int) -> None:
+    """Print both times for converging-``n``."""
+    scenario = make_scenario(f"converging-{n}")
+    params = SimConfig().to_params(scenario.workspace_radius_nm)
+    start = initial_state(scenario, 1)
+    waypoints = start[:, :, kernel.S_WP_X : kernel.S_WP_Y + 1].copy()
+    wind = np.zeros((1, 2))
+    scratch = kernel.KernelScratch()
+    trace = kernel.advance(start.copy(), waypoints, wind, 300.0, params, scratch=scratch)
+    grad, command = scratch.get(1, n)
+    buffers = [np.empty_like(getattr(trace, name)) for name in TRACE_FIELDS]
+    steps = kernel.steps_for(300.0, float(params[kernel.nf.P_DT]))
+
+    def through_advance() -> float:
+        state = start.copy()
+        t0 = time.perf_counter()
+        kernel.advance(state, waypoints, wind, 300.0, params, scratch=scratch)
+        return time.perf_counter() - t0
+
+    def compiled_alone() -> float:
+        state = start.copy()
+        t0 = time.perf_counter()
+        kernel._advance_checked(state, waypoints, wind, steps, params, grad, command, *buffers, 1)
+        return time.perf_counter() - t0
+
+    for _ in range(200):
+        through_advance(), compiled_alone()
+    whole, alone = [], []
+    for _ in range(31):
+        whole.append(np.median([through_advance() for _ in range(200)]))
+        alone.append(np.median([compiled_alone() for _ in range(200)]))
+    a, c = np.median(whole) * 1e6, np.median(alone) * 1e6
+    print(f"converging-{n}, B = 1: advance {a:.1f} µs per period, its compiled call alone {c:.1f} µs; "
+          f"the Python around it {a - c:.1f} µs ({(a - c) / a:.0%})")
+
+
+def main() -> None:
+    for n in (4, 6):
+        measure(n)
+
+
+if __name__ == "__main__":
+    main()
