@@ -30,8 +30,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -55,9 +53,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", default=str(ROOT / "agents/models/finetuned_ppo.zip"))
     args = parser.parse_args(argv)
 
-    from atc_nf_env.episode import run_episode
+    from _alternating import fly_alternately  # bench/experiments/ is on sys.path when run as a script
+
     from atc_nf_env.policy import make_policy
-    from atc_nf_env.scenarios import make_scenario
     from atc_nf_env.shield import SafetyFilter
 
     agent = make_policy(args.model)
@@ -67,25 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{Path(args.model).stem} inside the safety filter of {args.before} (old) and of the working tree (new), "
               f"seeds 0..{args.seeds - 1}, alternating episode by episode in one process:")
         for name in args.scenarios.split(","):
-            for shielded in filters.values():  # warm-up: loads and compiles, not timed
-                run_episode(shielded, make_scenario(name, seed=10**6), seed=10**6)
-            times: dict[str, list[float]] = {"old": [], "new": []}
-            per_seed: dict[str, list[float]] = {"old": [], "new": []}
-            for seed in range(args.seeds):
-                order = ("old", "new") if seed % 2 else ("new", "old")
-                flown = {}
-                for label in order:
-                    result = run_episode(filters[label], make_scenario(name, seed=seed), seed=seed)
-                    flown[label] = result.waypoints
-                    times[label] += list(result.decision_s)
-                    per_seed[label].append(float(np.mean(result.decision_s)))
-                if not np.array_equal(flown["old"], flown["new"]):
-                    raise SystemExit(f"{name} seed {seed}: the two filters applied different waypoints")
-            old, new = (np.array(times[label]) * 1e6 for label in ("old", "new"))
-            ratio = np.array(per_seed["new"]) / np.array(per_seed["old"])
-            q25, q50, q75 = np.percentile(ratio, [25, 50, 75])
-            print(f"  {name}: old mean {old.mean():.1f} µs, median {np.median(old):.1f} µs; new mean {new.mean():.1f} µs, "
-                  f"median {np.median(new):.1f} µs; new/old per seed {q50:.3f} [{q25:.3f}-{q75:.3f}]", flush=True)
+            print(f"  {name}: {fly_alternately(filters, name, args.seeds)}", flush=True)
     return 0
 
 
