@@ -263,11 +263,9 @@ class SafetyFilter:
                            self._params, scratch=kernel.KernelScratch())
             # And the structured alternatives' code (a cache load of several ms otherwise
             # falls into the first decision changed).
-            world = np.ascontiguousarray(state[0])
-            for joint in (False, True):
-                _structured_alternatives(world, world[:, S_WP_X : S_WP_Y + 1].copy(), np.zeros(1, dtype=np.int64), joint,
-                                         _JOINT_TURNS if joint else _TURNS, _DISTANCES, _DISTANCES,
-                                         self.recovery_angle_rad, self._waypoint_limit_nm)
+            view = WorldView(0.0, np.ascontiguousarray(state[0]), scenario)
+            for kind in ("single", "joint"):
+                self._alternatives(view, view.waypoints, np.zeros(scenario.n_aircraft, dtype=np.bool_), kind)
             SafetyFilter._batch_warm = True
 
     def act(self, view: WorldView) -> np.ndarray:
@@ -286,7 +284,6 @@ class SafetyFilter:
         if not proposal.flags.c_contiguous:
             proposal = np.ascontiguousarray(proposal)
         memory = self._memory
-        stalled_before = memory.counts[1]
         # The routine decision, wind estimate and stall rule included, in one compiled call
         # (``PlanPredictor.screen``): its Python took about a fifth of a shielded decision.
         verdict = self._predictor.screen(state, proposal, float(view.time_s), self.period_s, memory,
@@ -295,17 +292,18 @@ class SafetyFilter:
             raise ValueError(f"{type(self.policy).__name__}.act returned NaN or inf waypoints: {proposal.tolist()}")
         counts = self._counts
         counts["shield_decisions"] += 1
-        counts["shield_stalled_aircraft"] += int(memory.counts[1] - stalled_before)
+        counts["shield_stalled_aircraft"] = int(memory.counts[1])  # the stall rule counts them in ``screen``
         if verdict == SCREEN_SAFE or verdict == SCREEN_NONE_FLYING:
             return proposal
-        flying = (state[:, S_STATUS] == FLYING).tolist()
+        flying_mask = state[:, S_STATUS] == FLYING
+        flying = flying_mask.tolist()
         planned = memory.planned[0].copy()
         homed = verdict == SCREEN_HOMED
         if homed:
             # The stall rule: the MCMC-MPC's decision for the aircraft handed over (the
             # filter's wind estimate shared; the homing waypoint without an MPC), every other
             # aircraft keeping the policy's waypoint.
-            handed = np.flatnonzero(memory.homebound & (state[:, S_STATUS] == FLYING))
+            handed = np.flatnonzero(memory.homebound & flying_mask)
             if self._mpc is None:
                 planned[handed] = self._homing(state, planned)[handed]
             else:
@@ -318,8 +316,7 @@ class SafetyFilter:
                 memory.remember(view.time_s + self.period_s, outcome[3], outcome[4])
                 return self._apply(proposal, planned, flying)
         else:
-            outcome = (int(self._predictor.survived[0]), int(self._predictor.survived[0]) >= self._period_steps,
-                       self._predictor.blamed[0].copy(), None, None)
+            outcome = self._breach()
         survived, period1_ok, blamed = outcome[0], outcome[1], outcome[2]
         counts["shield_filtered"] += 1
         if period1_ok:
@@ -389,8 +386,13 @@ class SafetyFilter:
         if predictor.first_safe(state, np.ascontiguousarray(planned[None]), self._memory.wind_kt,
                                 checked=False) != NONE_SAFE:
             return None, True, None, predictor.positions.copy(), predictor.alive.copy()
-        survived = int(predictor.survived[0])
-        return survived, survived >= self._period_steps, predictor.blamed[0].copy(), None, None
+        return self._breach()
+
+    def _breach(self) -> tuple[int, bool, np.ndarray, None, None]:
+        """``_check``'s unsafe outcome of the predictor's last prediction of one waypoint set
+        (``screen``'s or ``first_safe``'s candidate 0)."""
+        survived = int(self._predictor.survived[0])
+        return survived, survived >= self._period_steps, self._predictor.blamed[0].copy(), None, None
 
     def _predict(
         self, base_state: np.ndarray, waypoints: np.ndarray

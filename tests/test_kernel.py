@@ -257,3 +257,52 @@ def test_the_world_loop_counts_no_references_and_the_option_degrades_cleanly(mon
     monkeypatch.setattr(cpu, "CPUTargetOptions", type("OptionsWithoutNrt", (), {}))
     assert nf._without_reference_counts() == {}
 
+
+
+def _trace_values(trace: kernel.Trace) -> dict[str, np.ndarray]:
+    return {name: np.array(value, copy=True) for name, value in trace.__dict__.items()}
+
+
+def test_a_trace_the_caller_still_holds_is_never_written_again():
+    # KernelScratch reuses a trace only once nothing outside it refers to the trace or to any
+    # of its arrays: a held trace, a held field and a held view of a field all keep theirs.
+    scenario = converging(4)
+    params = params_for(scenario)
+    scratch = kernel.KernelScratch()
+    state = initial_state(scenario, n_worlds=2)
+    waypoints = np.repeat(scenario.dest_xy[None], 2, axis=0)
+    wind = np.array([[5.0, -3.0], [-8.0, 2.0]])
+    held = advance(state, waypoints, wind, 300.0, params, record_every=6, scratch=scratch)
+    field = advance(state, waypoints, wind, 300.0, params, record_every=6, scratch=scratch).los_pairs
+    view = advance(state, waypoints, wind, 300.0, params, record_every=6, scratch=scratch).violation_steps[:, 1:]
+    snapshots = (_trace_values(held), field.copy(), view.copy())
+    for _ in range(4):  # flights that differ from the held ones: any overwrite would show
+        advance(state, waypoints, -wind, 600.0 if _ % 2 else 300.0, params, record_every=6, scratch=scratch)
+    for name, value in snapshots[0].items():
+        assert np.array_equal(getattr(held, name), value), name
+    assert np.array_equal(field, snapshots[1]) and np.array_equal(view, snapshots[2])
+    assert len({id(held.los_pairs), id(field), id(view.base)}) == 3
+
+
+def test_a_dropped_trace_is_reused_and_reads_as_a_new_one():
+    # The reuse exists (it is the point: about a fifth of a one-world period) and cannot be
+    # told from new arrays: a reused trace holds exactly what a fresh scratch's holds, its
+    # record included, though the world stopped early and left rows unwritten.
+    scenario = converging(4)
+    params = params_for(scenario, stop_on_violation=True)
+    waypoints = np.repeat(scenario.dest_xy[None], 1, axis=0)
+    wind = np.zeros((1, 2))
+    scratch = kernel.KernelScratch()
+    state = initial_state(scenario)
+    first = advance(state, waypoints, wind, 600.0, params_for(scenario), record_every=2, scratch=scratch)
+    first_id = id(first)
+    assert first.steps_done[0] == 120 and (first.record[0, -1] != 0.0).any()  # every row written
+    del first
+    behind = waypoints.copy()
+    behind[0, 0] = 2 * state[0, 0, S_X : S_Y + 1] - waypoints[0, 0]  # aircraft 0 reverses: a breach
+    again = advance(initial_state(scenario), behind, wind, 600.0, params, record_every=2, scratch=scratch)
+    fresh = advance(initial_state(scenario), behind, wind, 600.0, params, record_every=2,
+                    scratch=kernel.KernelScratch())
+    assert id(again) == first_id and again.steps_done[0] < 120
+    for name, value in _trace_values(fresh).items():
+        assert np.array_equal(getattr(again, name), value), name
