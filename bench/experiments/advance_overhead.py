@@ -24,14 +24,18 @@ TRACE_FIELDS = ("min_airspeed_kt", "max_airspeed_kt", "violation_steps", "worst_
                 "los_pairs", "min_separation_nm", "steps_done", "violated", "record")
 
 
+def one_world(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, kernel.KernelScratch]:
+    """The start state, waypoints, wind (no wind), parameters and a scratch of one world of
+    converging-``n`` flying its first period (also ``trace_reuse_ab.py``'s)."""
+    scenario = make_scenario(f"converging-{n}")
+    start = initial_state(scenario, 1)
+    return (start, start[:, :, kernel.S_WP_X : kernel.S_WP_Y + 1].copy(), np.zeros((1, 2)),
+            SimConfig().to_params(scenario.workspace_radius_nm), kernel.KernelScratch())
+
+
 def measure(n: int) -> None:
     """Print both times for converging-``n``."""
-    scenario = make_scenario(f"converging-{n}")
-    params = SimConfig().to_params(scenario.workspace_radius_nm)
-    start = initial_state(scenario, 1)
-    waypoints = start[:, :, kernel.S_WP_X : kernel.S_WP_Y + 1].copy()
-    wind = np.zeros((1, 2))
-    scratch = kernel.KernelScratch()
+    start, waypoints, wind, params, scratch = one_world(n)
     trace = kernel.advance(start.copy(), waypoints, wind, 300.0, params, scratch=scratch)
     grad, command = scratch.get(1, n)
     buffers = [np.empty_like(getattr(trace, name)) for name in TRACE_FIELDS]

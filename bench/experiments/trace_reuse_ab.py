@@ -15,19 +15,13 @@ import time
 
 import numpy as np
 
+from advance_overhead import one_world  # bench/experiments/ is on sys.path when run as a script
+
 from atc_nf_env import kernel
-from atc_nf_env.config import SimConfig
-from atc_nf_env.scenarios import make_scenario
-from atc_nf_env.simulation import initial_state
 
 
 def measure(n: int, rounds: int = 31, calls: int = 200) -> str:
-    scenario = make_scenario(f"converging-{n}")
-    params = SimConfig().to_params(scenario.workspace_radius_nm)
-    start = initial_state(scenario, 1)
-    waypoints = start[:, :, kernel.S_WP_X : kernel.S_WP_Y + 1].copy()
-    wind = np.zeros((1, 2))
-    scratch = kernel.KernelScratch()
+    start, waypoints, wind, params, scratch = one_world(n)
 
     def one_period() -> float:
         state = start.copy()
