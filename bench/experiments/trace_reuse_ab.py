@@ -14,7 +14,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
 from advance_overhead import one_world  # bench/experiments/ is on sys.path when run as a script
 
 from atc_nf_env import kernel
