@@ -306,3 +306,32 @@ def test_a_dropped_trace_is_reused_and_reads_as_a_new_one():
     assert id(again) == first_id and again.steps_done[0] < 120
     for name, value in _trace_values(fresh).items():
         assert np.array_equal(getattr(again, name), value), name
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["drop", "trace", "field", "view", "record"]), st.integers(0, 3)),
+                min_size=1, max_size=12))
+def test_whatever_a_caller_keeps_of_a_trace_stays_as_it_was(calls):
+    # Random sequences of calls that keep a whole trace, one of its arrays, a view of one, or
+    # nothing, on changing shapes (1 or 2 worlds, with and without a record): nothing kept is
+    # ever overwritten by a later call on the same scratch.
+    scenario = converging(4)
+    params = params_for(scenario)
+    scratch = kernel.KernelScratch()
+    kept = []
+    for index, (keep, variant) in enumerate(calls):
+        n_worlds = 1 + variant % 2
+        state = initial_state(scenario, n_worlds=n_worlds)
+        waypoints = np.repeat(scenario.dest_xy[None], n_worlds, axis=0)
+        wind = np.full((n_worlds, 2), float(index) - 3.0)
+        trace = advance(state, waypoints, wind, 300.0, params, record_every=30 if variant >= 2 else 0, scratch=scratch)
+        held = {"trace": trace, "field": trace.min_airspeed_kt, "view": trace.steps_flown[:, 1:],
+                "record": trace.record, "drop": None}[keep]
+        if held is not None:
+            kept.append((held, _trace_values(held) if keep == "trace" else held.copy()))
+        del trace
+    for held, snapshot in kept:
+        if isinstance(held, kernel.Trace):
+            assert all(np.array_equal(getattr(held, name), value) for name, value in snapshot.items())
+        else:
+            assert np.array_equal(held, snapshot)
