@@ -258,7 +258,6 @@ def test_the_world_loop_counts_no_references_and_the_option_degrades_cleanly(mon
     assert nf._without_reference_counts() == {}
 
 
-
 def _trace_values(trace: kernel.Trace) -> dict[str, np.ndarray]:
     return {name: np.array(value, copy=True) for name, value in trace.__dict__.items()}
 
