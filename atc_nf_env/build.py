@@ -19,6 +19,7 @@ from pathlib import Path
 PACKAGE_SOURCES: tuple[str, ...] = (
     "kernel.py",
     "nf.py",
+    "trig.py",
     "config.py",
     "units.py",
     "scenarios.py",

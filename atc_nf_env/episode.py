@@ -121,11 +121,11 @@ def run_episode(
         config: NF gains and integrator settings.
         period_s: decision period T, s (a whole number of integration steps).
         max_time_s: time limit, s (a whole number of integration steps).
+        record_every: keep the state every this many integration steps (0: none).
 
     Raises:
         ValueError: on a period or time limit that is not a whole number >= 1 of
             integration steps (refused before anything flies), or any other bad setting.
-        record_every: keep the state every this many integration steps (0: none).
     """
     config = config or SimConfig()
     period_steps = whole_steps("period_s", period_s, config.dt_s)

@@ -7,6 +7,10 @@ the number of vector envs), the MPC (B = K candidates, one decision at once) and
 Monte Carlo evaluator. It is compiled with numba, parallel over worlds, and allocates
 nothing inside its integration loop (its scratch comes from the caller). The checks of
 its inputs' values and of its result run in the same compiled call as the flight.
+A batch of ``LANE_MIN_WORLDS`` worlds or more takes the lane path (see the section of that
+name below): a world's ordinary steps, with no neighbour in range and no guard acting, are
+flown for chunks of worlds at once in SIMD lanes, its other steps by the scalar path, in the
+same arithmetic; a world flies bit for bit the same trajectory either way.
 
 Physics per aircraft i, integrated at ``dt_s`` with the second-order Adams-Bashforth
 scheme (explicit Euler on the first step under a new waypoint) (paper (1), (5)):
@@ -134,7 +138,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from atc_nf_env import nf
+from atc_nf_env import nf, trig
 from atc_nf_env.nf import FAST_MATH_FLAGS, NO_REFERENCE_COUNTS
 from atc_nf_env.nf import (
     ABSENT,
@@ -242,9 +246,8 @@ def _assign_waypoints(state: np.ndarray, waypoints: np.ndarray) -> None:
         if wx == state[i, S_DEST_X] and wy == state[i, S_DEST_Y]:
             state[i, S_THETA_D] = state[i, S_DEST_HEADING]
         else:
-            state[i, S_THETA_D] = math.atan2(wy - state[i, S_Y], wx - state[i, S_X])
-        state[i, S_COS_D] = math.cos(state[i, S_THETA_D])
-        state[i, S_SIN_D] = math.sin(state[i, S_THETA_D])
+            state[i, S_THETA_D] = trig.poly_atan2(wy - state[i, S_Y], wx - state[i, S_X])
+        state[i, S_SIN_D], state[i, S_COS_D] = trig.sincos(state[i, S_THETA_D])
         state[i, S_FRESH] = 1.0
 
 
@@ -326,8 +329,7 @@ def _commands(
         gx = grad[i, i, 0]
         gy = grad[i, i, 1]
         heading = state[i, S_HEADING]
-        cos_h = math.cos(heading)
-        sin_h = math.sin(heading)
+        sin_h, cos_h = trig.sincos(heading)
         p_dir = cos_h * gx + sin_h * gy
         dx = (state[i, S_X] - wx) * inv_len
         dy = (state[i, S_Y] - wy) * inv_len
@@ -337,7 +339,7 @@ def _commands(
         if grad_norm2 > grad_floor * grad_floor:
             along = cos_d * dx + sin_d * dy
             sgn_along = 1.0 if along >= 0.0 else -1.0
-            theta_nh = math.atan2(sgn_along * gy, sgn_along * gx)
+            theta_nh = trig.poly_atan2(sgn_along * gy, sgn_along * gx)
         else:
             theta_nh = theta_d  # guard 3
         theta_nh_rate = 0.0
@@ -421,6 +423,57 @@ def _commands(
     return any_flying, refine, outside
 
 
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _begin_world(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    record: np.ndarray,
+) -> None:
+    """A world's new waypoints, its outcome arrays zeroed and its record's first row."""
+    n = state.shape[0]
+    _assign_waypoints(state, waypoints)
+    for i in range(n):
+        min_airspeed[i] = state[i, S_AIRSPEED]
+        max_airspeed[i] = state[i, S_AIRSPEED]
+        violation_steps[i] = 0
+        worst_excursion[i] = 0.0
+        steps_flown[i] = 0
+        for j in range(n):
+            los_pairs[i, j] = 0
+    if record.shape[0] > 0:
+        for i in range(n):
+            record[0, i, R_X] = state[i, S_X]
+            record[0, i, R_Y] = state[i, S_Y]
+            record[0, i, R_HEADING] = state[i, S_HEADING]
+            record[0, i, R_AIRSPEED] = state[i, S_AIRSPEED]
+            record[0, i, R_FLEW] = 1.0 if state[i, S_STATUS] == FLYING else 0.0
+            record[0, i, R_AIRSPEED_MIN] = state[i, S_AIRSPEED]
+            record[0, i, R_AIRSPEED_MAX] = state[i, S_AIRSPEED]
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _record_step(state: np.ndarray, command: np.ndarray, record: np.ndarray, step: int, record_every: int) -> None:
+    """The world's state after integration step ``step`` into its record, every
+    ``record_every`` steps."""
+    if record.shape[0] > 0 and step % record_every == 0 and step // record_every < record.shape[0]:
+        r = step // record_every
+        for i in range(state.shape[0]):
+            record[r, i, R_X] = state[i, S_X]
+            record[r, i, R_Y] = state[i, S_Y]
+            record[r, i, R_HEADING] = state[i, S_HEADING]
+            record[r, i, R_AIRSPEED] = state[i, S_AIRSPEED]
+            record[r, i, R_FLEW] = command[i, C_FLEW]
+            flew_step = command[i, C_FLEW] > 0.0
+            record[r, i, R_AIRSPEED_MIN] = command[i, C_STEP_MIN] if flew_step else state[i, S_AIRSPEED]
+            record[r, i, R_AIRSPEED_MAX] = command[i, C_STEP_MAX] if flew_step else state[i, S_AIRSPEED]
+
+
 # Without reference counts (``nf.NO_REFERENCE_COUNTS``): it allocates nothing, and the counts
 # of the arrays its inlined helpers pass took about a quarter of a one-world flight.
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
@@ -459,29 +512,11 @@ def _advance_world(
     nf_consts = nf.nf_constants(params)
     inv_dt = 1.0 / dt
 
-    _assign_waypoints(state, waypoints)
-    for i in range(n):
-        min_airspeed[i] = state[i, S_AIRSPEED]
-        max_airspeed[i] = state[i, S_AIRSPEED]
-        violation_steps[i] = 0
-        worst_excursion[i] = 0.0
-        steps_flown[i] = 0
-        for j in range(n):
-            los_pairs[i, j] = 0
-
+    _begin_world(state, waypoints, min_airspeed, max_airspeed, violation_steps, worst_excursion, steps_flown,
+                 los_pairs, record)
     min_sep2 = NO_PAIR_SEPARATION_NM * NO_PAIR_SEPARATION_NM
     sep_min2 = sep_min * sep_min
     violated = False
-    n_record = record.shape[0]
-    if n_record > 0:
-        for i in range(n):
-            record[0, i, R_X] = state[i, S_X]
-            record[0, i, R_Y] = state[i, S_Y]
-            record[0, i, R_HEADING] = state[i, S_HEADING]
-            record[0, i, R_AIRSPEED] = state[i, S_AIRSPEED]
-            record[0, i, R_FLEW] = 1.0 if status[i] == FLYING else 0.0
-            record[0, i, R_AIRSPEED_MIN] = state[i, S_AIRSPEED]
-            record[0, i, R_AIRSPEED_MAX] = state[i, S_AIRSPEED]
 
     step = 0
     while step < n_steps:
@@ -604,17 +639,7 @@ def _advance_world(
             if command[i, C_FLEW] == 1.0:
                 steps_flown[i] += 1
         step += 1
-        if n_record > 0 and step % record_every == 0 and step // record_every < n_record:
-            r = step // record_every
-            for i in range(n):
-                record[r, i, R_X] = state[i, S_X]
-                record[r, i, R_Y] = state[i, S_Y]
-                record[r, i, R_HEADING] = state[i, S_HEADING]
-                record[r, i, R_AIRSPEED] = state[i, S_AIRSPEED]
-                record[r, i, R_FLEW] = command[i, C_FLEW]
-                flew_step = command[i, C_FLEW] > 0.0
-                record[r, i, R_AIRSPEED_MIN] = command[i, C_STEP_MIN] if flew_step else state[i, S_AIRSPEED]
-                record[r, i, R_AIRSPEED_MAX] = command[i, C_STEP_MAX] if flew_step else state[i, S_AIRSPEED]
+        _record_step(state, command, record, step, record_every)
         if step_violation:
             violated = True
             if stop_on_violation:
@@ -701,6 +726,461 @@ def _advance_batch(
         )
 
 
+# -- The lane path: many worlds' ordinary steps in the lanes of SIMD registers ---------------
+#
+# A step of a world in which every aircraft flies, no two are within the sensing radius, and
+# nothing unusual happens (no command at the cap, no arrival or departure within reach, no
+# loss of separation, no angle beyond 3π) takes none of the guards' branches: the NF has no
+# neighbour terms, ∂Φ_i/∂t = 0, and the step is one AB2 or Euler step. That step is flown
+# here for a chunk of worlds at once, with the worlds in the innermost loop, the state as
+# structure of arrays (field, aircraft, world) and every branch a select, so that LLVM flies
+# several worlds per instruction (packed square roots and divisions; atan2 and sincos stay
+# scalar calls, in loops of their own, bit for bit the scalar ones). The arithmetic is the
+# scalar path's operation for operation, so a world flies bit for bit the same trajectory
+# whichever path flies a step (``tests/test_kernel_lanes.py``). Every other step of a world
+# (neighbours in range, the guards, arrivals) is flown by ``_advance_world``, the scalar
+# path, for that one step on the world's own rows. ``bench/bench_kernel.py`` measures what
+# it gains. Why these loops vectorize: each chunk has buffers of its own indexed from 0
+# (an index numba cannot prove non-negative gets a wraparound branch, and LLVM vectorizes
+# no loop with one), and every value is loaded before any select.
+
+#: Fewest worlds in a call for the lane path (fewer fill too few lanes to pay its transposes).
+LANE_MIN_WORLDS = 16
+#: Worlds per chunk of the lane path: a chunk's fields stay in the L1/L2 caches.
+LANE_CHUNK = 64
+#: Length of a chunk's rows: a chunk and a few more, so that rows of the same field and
+#: of different fields do not lie a multiple of 4 KiB apart (loads and stores at such
+#: distances alias in the L1 cache and stall each other).
+LANE_ROW = LANE_CHUNK + 8
+
+# Per-aircraft scratch of the lane path (T_*, aircraft, world).
+T_COS, T_SIN, T_GX, T_GY, T_ARG_X, T_THETA, T_X1, T_Y1, T_HEADING1, T_VX, T_VY, T_OMEGA, T_U, T_STEP_NM = range(14)
+N_LANE_TEMP = 14
+# Per-world scratch of the lane path (W_*, world).
+W_ACTIVE = 0  # 1 while the world steps (0 once it stopped at a violation or has nobody flying)
+W_ORDINARY = 1  # 1 if the lane step is this step's flight of the world
+W_MIN_SEP2 = 2  # smallest squared separation over the lane steps, nm²
+W_NEW_MIN_SEP2 = 3  # the same after the lane step
+W_STEP_VIOLATION = 4  # 1 if the lane step left the envelope
+W_STEPS = 5  # integration steps done
+W_VIOLATED = 6  # 1 once a step left the envelope or lost separation
+W_WIND_X = 7  # the world's wind, kt
+W_WIND_Y = 8
+W_MIN_SEP_SCALAR = 9  # smallest separation over the steps flown by the scalar path, nm
+N_LANE_WORLD = 10
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _select(condition: bool, if_true: float, if_false: float) -> float:
+    """``if_true if condition else if_false`` of two values already loaded (a function
+    argument is evaluated before the call: no load under a condition, no branch)."""
+    return if_true if condition else if_false
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _lane_wrap(angle: float) -> float:
+    """``_wrap`` for |angle| < 3π as a select (its third case, a floor, for larger angles,
+    sends the step to the scalar path)."""
+    near = angle - _TWO_PI if angle >= math.pi else angle + _TWO_PI
+    # & instead of a chained comparison: ``and`` short-circuits, a branch the vectorizer cannot take.
+    return angle if (angle >= -math.pi) & (angle < math.pi) else near
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _lane_feedback(gx: float, gy: float, cos_h: float, sin_h: float, dx: float, dy: float, atan2_nh: float,
+                   theta_d: float, params: np.ndarray) -> tuple[float, float]:
+    """``_commands``' pass 1 after the NF, without neighbours: (−sgn(P_i) F_i kt, θ_nh rad),
+    θ_d where the gradient has no direction (guard 3); dx, dy: q_i − q_d in units of L."""
+    grad_floor = params[P_GRAD_FLOOR]
+    p_dir = cos_h * gx + sin_h * gy
+    grad_norm2 = gx * gx + gy * gy
+    f_speed = params[P_K_U] * grad_norm2 + params[P_K_Z] * (dx * dx + dy * dy)
+    sgn_p = 1.0 if p_dir >= 0.0 else -1.0
+    theta_nh = atan2_nh if grad_norm2 > grad_floor * grad_floor else theta_d
+    return -sgn_p * f_speed, theta_nh
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _lane_move(u: float, cos_h: float, sin_h: float, wind_x: float, wind_y: float, x0: float, y0: float,
+               heading: float, theta_nh: float, theta_nh_before: float, fresh: float, last_sub: float,
+               vx_prev: float, vy_prev: float, omega_prev: float, dt: float, inv_dt: float,
+               k_theta: float) -> tuple[float, float, float, float, float, float, bool]:
+    """The heading law (5b) and the move of one unrefined step (AB2, or Euler after a
+    waypoint switch or a refined step), every branch a select: (x1, y1 nm, the wrapped
+    heading rad, vx, vy kt, ω rad/s, whether an angle reached 3π)."""
+    nm_per_kt_step = dt / SECONDS_PER_HOUR
+    jump_raw = theta_nh - theta_nh_before
+    error_raw = heading - theta_nh
+    jump = _lane_wrap(jump_raw)
+    rate = jump * (max(last_sub, 1.0) * inv_dt)
+    theta_nh_rate = 0.0 if (fresh != 0.0) | (abs(jump) > _HALF_PI) else rate  # guard 5
+    omega = -k_theta * _lane_wrap(error_raw) + theta_nh_rate  # guard 4
+    vx = u * cos_h + wind_x
+    vy = u * sin_h + wind_y
+    ab2 = (fresh == 0.0) & (last_sub <= 1.0)
+    x_ab2 = x0 + (1.5 * vx - 0.5 * vx_prev) * nm_per_kt_step
+    y_ab2 = y0 + (1.5 * vy - 0.5 * vy_prev) * nm_per_kt_step
+    h_ab2 = heading + (1.5 * omega - 0.5 * omega_prev) * dt
+    x_euler = x0 + vx * nm_per_kt_step
+    y_euler = y0 + vy * nm_per_kt_step
+    h_euler = heading + omega * dt
+    new_heading = h_ab2 if ab2 else h_euler
+    far = max(abs(jump_raw), abs(error_raw), abs(new_heading)) >= 3.0 * math.pi
+    return (x_ab2 if ab2 else x_euler), (y_ab2 if ab2 else y_euler), _lane_wrap(new_heading), vx, vy, omega, far
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def _lane_step(count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarray, params: np.ndarray,
+               nf_consts: tuple) -> None:
+    """The lane step of the first ``count`` worlds of a chunk, ``lanes`` (N_STATE, N,
+    LANE_CHUNK), into ``temp`` (N_LANE_TEMP, N, LANE_CHUNK), and ``world[W_ORDINARY]`` set
+    where it is the world's step. Indices from 0 over a chunk's own buffers: numba then
+    knows them non-negative and emits no wraparound branch, which would keep LLVM from
+    vectorizing the loops."""
+    n = lanes.shape[1]
+    inv_len, _, _, _, _, _, _, r_sense2, _, _, _ = nf_consts
+    dt = params[P_DT]
+    inv_dt = 1.0 / dt
+    k_theta = params[P_K_THETA]
+    u_cap = params[P_U_CAP]
+    delta = params[P_DELTA]
+    sep_min = params[P_SEP_MIN]
+    sep_min2 = sep_min * sep_min
+    exit_radius = params[P_R_WORLD] - params[P_RADIUS]
+    exit2 = exit_radius * exit_radius
+    length = params[P_LENGTH]
+    ordinary = world[W_ORDINARY]
+    for b in range(count):
+        ordinary[b] = world[W_ACTIVE, b]
+    for i in range(n):
+        status = lanes[S_STATUS, i]
+        for b in range(count):
+            # Every load before any select: a load under a condition would keep the branch.
+            flag = ordinary[b]
+            ordinary[b] = flag if status[b] == FLYING else 0.0
+    # No neighbour within the sensing radius, in the NF's own arithmetic (its test is
+    # symmetric in the pair: q_j − q_i is exactly −(q_i − q_j)).
+    for i in range(n):
+        for j in range(i + 1, n):
+            for b in range(count):
+                rx = lanes[S_X, i, b] * inv_len - lanes[S_X, j, b] * inv_len
+                ry = lanes[S_Y, i, b] * inv_len - lanes[S_Y, j, b] * inv_len
+                flag = ordinary[b]
+                ordinary[b] = flag if rx * rx + ry * ry >= r_sense2 else 0.0
+    for i in range(n):
+        x, y, wp_x, wp_y = lanes[S_X, i], lanes[S_Y, i], lanes[S_WP_X, i], lanes[S_WP_Y, i]
+        cos_d, sin_d, heading = lanes[S_COS_D, i], lanes[S_SIN_D, i], lanes[S_HEADING, i]
+        gx_out, gy_out, arg_x, theta = temp[T_GX, i], temp[T_GY, i], temp[T_ARG_X, i], temp[T_THETA, i]
+        for b in range(count):
+            # A world the lane step does not fly is fed a harmless point (inside the
+            # workspace, off its waypoint), so that no lane computes a NaN or inf.
+            use = ordinary[b] != 0.0
+            xb, yb, wp_xb, wp_yb, cos_db, sin_db = x[b], y[b], wp_x[b], wp_y[b], cos_d[b], sin_d[b]
+            gx, gy, _, sgn_along = nf.own_gradient_alone(
+                xb if use else 0.0, yb if use else 0.0, wp_xb if use else length, wp_yb if use else 0.0,
+                cos_db if use else 1.0, sin_db if use else 0.0, nf_consts,
+            )
+            gx_out[b] = gx
+            gy_out[b] = gy
+            arg_x[b] = sgn_along * gx
+            theta[b] = sgn_along * gy
+        for b in range(count):
+            theta[b] = trig.poly_atan2(theta[b], arg_x[b])  # θ_nh where the gradient has a direction
+        cos_h, sin_h = temp[T_COS, i], temp[T_SIN, i]
+        for b in range(count):
+            sin_h[b], cos_h[b] = trig.poly_sincos(heading[b])
+    for i in range(n):
+        x, y, wp_x, wp_y = lanes[S_X, i], lanes[S_Y, i], lanes[S_WP_X, i], lanes[S_WP_Y, i]
+        for b in range(count):
+            # Every load before any select: a load under a condition would keep the branch.
+            c = temp[T_COS, i, b]
+            sn = temp[T_SIN, i, b]
+            x0 = x[b]
+            y0 = y[b]
+            u, theta_nh = _lane_feedback(
+                temp[T_GX, i, b], temp[T_GY, i, b], c, sn, (x0 - wp_x[b]) * inv_len, (y0 - wp_y[b]) * inv_len,
+                temp[T_THETA, i, b], lanes[S_THETA_D, i, b], params,
+            )
+            saturated = not ((-u_cap < u) & (u < u_cap))
+            x1, y1, heading1, vx, vy, omega, far = _lane_move(
+                u, c, sn, world[W_WIND_X, b], world[W_WIND_Y, b], x0, y0, lanes[S_HEADING, i, b], theta_nh, lanes[S_THETA_NH, i, b],
+                lanes[S_FRESH, i, b], lanes[S_LAST_SUBSTEPS, i, b], lanes[S_VX_PREV, i, b], lanes[S_VY_PREV, i, b],
+                lanes[S_OMEGA_PREV, i, b], dt, inv_dt, k_theta,
+            )
+            step_nm = math.sqrt((x1 - x0) * (x1 - x0) + (y1 - y0) * (y1 - y0))
+            ex = x1 - lanes[S_DEST_X, i, b]
+            ey = y1 - lanes[S_DEST_Y, i, b]
+            reach = delta + step_nm
+            # Within reach of its destination (an arrival to test) or at the boundary (guard 7).
+            unusual = saturated | far | (ex * ex + ey * ey <= reach * reach) | (x1 * x1 + y1 * y1 >= exit2)
+            flag = ordinary[b]
+            ordinary[b] = 0.0 if unusual else flag
+            temp[T_X1, i, b] = x1
+            temp[T_Y1, i, b] = y1
+            temp[T_HEADING1, i, b] = heading1
+            temp[T_VX, i, b] = vx
+            temp[T_VY, i, b] = vy
+            temp[T_OMEGA, i, b] = omega
+            temp[T_U, i, b] = u
+            temp[T_THETA, i, b] = theta_nh
+            temp[T_STEP_NM, i, b] = step_nm
+    new_min = world[W_NEW_MIN_SEP2]
+    for b in range(count):
+        new_min[b] = world[W_MIN_SEP2, b]
+    for i in range(n):
+        for j in range(i + 1, n):
+            for b in range(count):
+                sx = temp[T_X1, i, b] - temp[T_X1, j, b]
+                sy = temp[T_Y1, i, b] - temp[T_Y1, j, b]
+                sep2 = sx * sx + sy * sy
+                least = new_min[b]
+                flag = ordinary[b]
+                new_min[b] = sep2 if sep2 < least else least
+                ordinary[b] = 0.0 if sep2 < sep_min2 else flag
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def _lane_commit(count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarray, params: np.ndarray) -> None:
+    """The lane step into the chunk's state where it is the world's step, as
+    ``_advance_world`` would write it (the outcome arrays: ``_lane_outcomes``)."""
+    n = lanes.shape[1]
+    dt = params[P_DT]
+    ordinary = world[W_ORDINARY]
+    for i in range(n):
+        for b in range(count):
+            use = ordinary[b] != 0.0
+            # Both sides loaded before the select (a load under a condition would keep the branch).
+            lanes[S_VX_PREV, i, b] = _select(use, temp[T_VX, i, b], lanes[S_VX_PREV, i, b])
+            lanes[S_VY_PREV, i, b] = _select(use, temp[T_VY, i, b], lanes[S_VY_PREV, i, b])
+            lanes[S_OMEGA_PREV, i, b] = _select(use, temp[T_OMEGA, i, b], lanes[S_OMEGA_PREV, i, b])
+            lanes[S_X, i, b] = _select(use, temp[T_X1, i, b], lanes[S_X, i, b])
+            lanes[S_Y, i, b] = _select(use, temp[T_Y1, i, b], lanes[S_Y, i, b])
+            lanes[S_HEADING, i, b] = _select(use, temp[T_HEADING1, i, b], lanes[S_HEADING, i, b])
+            lanes[S_AIRSPEED, i, b] = _select(use, temp[T_U, i, b], lanes[S_AIRSPEED, i, b])
+            lanes[S_THETA_NH, i, b] = _select(use, temp[T_THETA, i, b], lanes[S_THETA_NH, i, b])
+            lanes[S_LAST_SUBSTEPS, i, b] = _select(use, 1.0, lanes[S_LAST_SUBSTEPS, i, b])
+            lanes[S_FRESH, i, b] = _select(use, 0.0, lanes[S_FRESH, i, b])
+            lanes[S_TIME, i, b] += _select(use, dt, 0.0)
+            lanes[S_PATH, i, b] += _select(use, temp[T_STEP_NM, i, b], 0.0)
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def _lane_outcomes(b0: int, count: int, temp: np.ndarray, world: np.ndarray, params: np.ndarray,
+                   min_airspeed: np.ndarray, max_airspeed: np.ndarray, violation_steps: np.ndarray,
+                   worst_excursion: np.ndarray, steps_flown: np.ndarray) -> None:
+    """The lane step into the outcome arrays of the worlds b0 … b0 + count − 1 it flies, as
+    ``_advance_world`` would write them."""
+    n = temp.shape[1]
+    u_min = params[P_U_MIN]
+    u_max = params[P_U_MAX]
+    ordinary = world[W_ORDINARY]
+    for k in range(count):
+        world[W_STEP_VIOLATION, k] = 0.0
+        if ordinary[k] == 0.0:
+            continue
+        b = b0 + k
+        for i in range(n):
+            u = temp[T_U, i, k]
+            first_flown = steps_flown[b, i] == 0
+            if first_flown or u < min_airspeed[b, i]:
+                min_airspeed[b, i] = u
+            if first_flown or u > max_airspeed[b, i]:
+                max_airspeed[b, i] = u
+            excursion = max(u_min - u, u - u_max)
+            if excursion > 0.0:
+                world[W_STEP_VIOLATION, k] = 1.0
+                if excursion > worst_excursion[b, i]:
+                    worst_excursion[b, i] = excursion
+                violation_steps[b, i] += 1
+            steps_flown[b, i] += 1
+        world[W_MIN_SEP2, k] = world[W_NEW_MIN_SEP2, k]
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def _fly_lanes(
+    b0: int,
+    b1: int,
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind: np.ndarray,
+    n_steps: int,
+    params: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    min_separation: np.ndarray,
+    steps_done: np.ndarray,
+    violated: np.ndarray,
+    record: np.ndarray,
+    record_every: int,
+    lanes: np.ndarray,
+    temp: np.ndarray,
+    world: np.ndarray,
+) -> None:
+    """Worlds b0..b1−1 of the batch flown step by step: each step by the lane step where it
+    is ordinary, by ``_advance_world`` for that step where it is not; for each world the
+    same outcome as ``_advance_world`` over all the steps. ``lanes``, ``temp``, ``world``:
+    the chunk's own buffers (N_STATE, N, LANE_ROW), (N_LANE_TEMP, N, LANE_ROW),
+    (N_LANE_WORLD, LANE_ROW)."""
+    n = state.shape[1]
+    stop_on_violation = params[P_STOP_ON_VIOLATION] != 0.0
+    nf_consts = nf.nf_constants(params)
+    count = b1 - b0
+    # One step of a world flown by ``_advance_world``: its outcome arrays for that step.
+    step_min = np.empty(n)
+    step_max = np.empty(n)
+    step_violations = np.empty(n, dtype=violation_steps.dtype)
+    step_worst = np.empty(n)
+    step_flown = np.empty(n, dtype=steps_flown.dtype)
+    step_los = np.empty((n, n), dtype=los_pairs.dtype)
+    no_record = np.empty((0, n, N_RECORD))
+    step_waypoints = np.empty((n, 2))
+    for k in range(count):
+        b = b0 + k
+        _begin_world(state[b], waypoints[b], min_airspeed[b], max_airspeed[b], violation_steps[b],
+                     worst_excursion[b], steps_flown[b], los_pairs[b], record[b])
+        for i in range(n):
+            for field in range(N_STATE):
+                lanes[field, i, k] = state[b, i, field]
+        world[W_ACTIVE, k] = 1.0
+        world[W_MIN_SEP2, k] = NO_PAIR_SEPARATION_NM * NO_PAIR_SEPARATION_NM
+        world[W_MIN_SEP_SCALAR, k] = NO_PAIR_SEPARATION_NM
+        world[W_STEPS, k] = 0.0
+        world[W_VIOLATED, k] = 0.0
+        world[W_WIND_X, k] = wind[b, 0]
+        world[W_WIND_Y, k] = wind[b, 1]
+    n_record = record.shape[1]
+    for step in range(n_steps):
+        _lane_step(count, lanes, temp, world, params, nf_consts)
+        _lane_commit(count, lanes, temp, world, params)
+        _lane_outcomes(b0, count, temp, world, params, min_airspeed, max_airspeed, violation_steps, worst_excursion,
+                       steps_flown)
+        any_active = False
+        for k in range(count):
+            b = b0 + k
+            if world[W_ACTIVE, k] == 0.0:
+                continue
+            if world[W_ORDINARY, k] != 0.0:
+                step_violation = world[W_STEP_VIOLATION, k] != 0.0
+                if n_record > 0 and (step + 1) % record_every == 0 and (step + 1) // record_every < n_record:
+                    r = (step + 1) // record_every
+                    for i in range(n):
+                        u = lanes[S_AIRSPEED, i, k]
+                        record[b, r, i, R_X] = lanes[S_X, i, k]
+                        record[b, r, i, R_Y] = lanes[S_Y, i, k]
+                        record[b, r, i, R_HEADING] = lanes[S_HEADING, i, k]
+                        record[b, r, i, R_AIRSPEED] = u
+                        record[b, r, i, R_FLEW] = 1.0
+                        record[b, r, i, R_AIRSPEED_MIN] = u
+                        record[b, r, i, R_AIRSPEED_MAX] = u
+            else:
+                # Not ordinary: ``_advance_world`` flies this step on the world's own rows,
+                # its outcome arrays for the step merged into the call's.
+                rows = state[b]
+                for i in range(n):
+                    for field in range(N_STATE):
+                        rows[i, field] = lanes[field, i, k]
+                for i in range(n):
+                    step_waypoints[i, 0] = rows[i, S_WP_X]
+                    step_waypoints[i, 1] = rows[i, S_WP_Y]
+                # The world's own waypoints (no switch), in a buffer of the layout that
+                # ``_advance_one`` passes, and ``record_every`` as an int64 as there (a literal
+                # 1 is a type of its own): one compiled ``_advance_world`` serves both.
+                # Without recording, the world is handed to it for all its remaining steps:
+                # a world dense or stopping enough to leave the lanes once mostly stays out,
+                # and each lane step it would take costs the transposes around it.
+                handed_over = n_record == 0
+                steps_left = n_steps - step if handed_over else 1
+                step_sep, flown, step_violation = _advance_world(
+                    rows, step_waypoints, wind[b, 0], wind[b, 1], steps_left, params, grad[b], command[b],
+                    step_min, step_max, step_violations, step_worst, step_flown, step_los, no_record, record_every,
+                )
+                for i in range(n):
+                    for field in range(N_STATE):
+                        lanes[field, i, k] = rows[i, field]
+                if flown == 0:
+                    world[W_ACTIVE, k] = 0.0
+                    continue
+                # min(√a, √b) = √min(a, b): the square root is correctly rounded, so monotonic.
+                world[W_MIN_SEP_SCALAR, k] = min(world[W_MIN_SEP_SCALAR, k], step_sep)
+                for i in range(n):
+                    if step_flown[i] > 0:
+                        first_flown = steps_flown[b, i] == 0
+                        if first_flown or step_min[i] < min_airspeed[b, i]:
+                            min_airspeed[b, i] = step_min[i]
+                        if first_flown or step_max[i] > max_airspeed[b, i]:
+                            max_airspeed[b, i] = step_max[i]
+                    violation_steps[b, i] += step_violations[i]
+                    worst_excursion[b, i] = max(worst_excursion[b, i], step_worst[i])
+                    steps_flown[b, i] += step_flown[i]
+                    for j in range(n):
+                        los_pairs[b, i, j] |= step_los[i, j]
+                _record_step(rows, command[b], record[b], step + 1, record_every)
+                if handed_over:
+                    # Its whole remaining flight is done: steps_done counts what it flew.
+                    world[W_STEPS, k] = step + flown
+                    if step_violation:
+                        world[W_VIOLATED, k] = 1.0
+                    world[W_ACTIVE, k] = 0.0
+                    continue
+            world[W_STEPS, k] = step + 1
+            if step_violation:
+                world[W_VIOLATED, k] = 1.0
+                if stop_on_violation:
+                    world[W_ACTIVE, k] = 0.0
+            any_active |= world[W_ACTIVE, k] != 0.0
+        if not any_active:
+            break
+    for k in range(count):
+        b = b0 + k
+        for i in range(n):
+            for field in range(N_STATE):
+                state[b, i, field] = lanes[field, i, k]
+        min_separation[b] = min(math.sqrt(world[W_MIN_SEP2, k]), world[W_MIN_SEP_SCALAR, k])
+        steps_done[b] = int(world[W_STEPS, k])
+        violated[b] = world[W_VIOLATED, k] != 0.0
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", parallel=True)
+def _advance_lanes(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind: np.ndarray,
+    n_steps: int,
+    params: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    min_separation: np.ndarray,
+    steps_done: np.ndarray,
+    violated: np.ndarray,
+    record: np.ndarray,
+    record_every: int,
+    lanes: np.ndarray,
+    temp: np.ndarray,
+    world: np.ndarray,
+) -> None:
+    """The batch in chunks of ``LANE_CHUNK`` worlds, the chunks in parallel."""
+    n_worlds = state.shape[0]
+    n_chunks = (n_worlds + LANE_CHUNK - 1) // LANE_CHUNK
+    for c in prange(n_chunks):
+        b0 = c * LANE_CHUNK
+        _fly_lanes(
+            b0, min(b0 + LANE_CHUNK, n_worlds), state, waypoints, wind, n_steps, params, grad, command,
+            min_airspeed, max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, min_separation,
+            steps_done, violated, record, record_every, lanes[c], temp[c], world[c],
+        )
+
 # Outcomes of ``_advance_checked``.
 _DONE = 0
 _BAD_INPUT = 1  # a NaN or inf in an input, or a parameter out of range: nothing was flown
@@ -736,6 +1216,9 @@ def _advance_checked(
     violated: np.ndarray,
     record: np.ndarray,
     record_every: int,
+    lanes: np.ndarray,
+    temp: np.ndarray,
+    world: np.ndarray,
 ) -> int:
     """``advance``'s compiled part: the checks of the values (all finite, the parameters
     that are divided by > 0) before anything moves, the flight, and the check that the
@@ -752,6 +1235,12 @@ def _advance_checked(
             0, state, waypoints, wind, n_steps, params, grad, command, min_airspeed, max_airspeed,
             violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
             violated, record, record_every,
+        )
+    elif state.shape[0] >= LANE_MIN_WORLDS and params[nf.P_K] == 2.0:
+        _advance_lanes(
+            state, waypoints, wind, n_steps, params, grad, command, min_airspeed, max_airspeed, violation_steps,
+            worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record, record_every,
+            lanes, temp, world,
         )
     else:
         _advance_batch(
@@ -820,16 +1309,24 @@ class KernelScratch:
         self._shape: tuple[int, int] = (-1, -1)
         self.grad = np.zeros((0, 0, 0, 2))
         self.command = np.zeros((0, 0, N_COMMAND))
-        # Two traces: a loop ``trace = advance(...)`` still holds the last one during the call.
-        self._traces: list[Trace | None] = [None, None]
-        self._trace_arrays: list[tuple[np.ndarray, ...]] = [(), ()]
-        self._trace_keys: list[tuple[int, int, int]] = [(-1, -1, -1), (-1, -1, -1)]
+        self.lanes = np.zeros((0, N_STATE, 0, LANE_ROW))
+        self.lane_temp = np.zeros((0, N_LANE_TEMP, 0, LANE_ROW))
+        self.lane_world = np.zeros((0, N_LANE_WORLD, LANE_ROW))
+        # Two slots of (trace, its arrays, its shapes): a loop ``trace = advance(...)`` still
+        # holds the last trace during the call.
+        empty: tuple[Trace | None, tuple[np.ndarray, ...], tuple[int, int, int]] = (None, (), (-1, -1, -1))
+        self._slots = [empty, empty]
         self._newest = 0
 
     def get(self, n_worlds: int, n_aircraft: int) -> tuple[np.ndarray, np.ndarray]:
+        """The scalar path's buffers (gradients, commands) for this batch shape."""
         if self._shape != (n_worlds, n_aircraft):
             self.grad = np.zeros((n_worlds, n_aircraft, n_aircraft, 2))
             self.command = np.zeros((n_worlds, n_aircraft, N_COMMAND))
+            chunks = -(-n_worlds // LANE_CHUNK) if n_worlds >= LANE_MIN_WORLDS else 0
+            self.lanes = np.zeros((chunks, N_STATE, n_aircraft, LANE_ROW))
+            self.lane_temp = np.zeros((chunks, N_LANE_TEMP, n_aircraft, LANE_ROW))
+            self.lane_world = np.zeros((chunks, N_LANE_WORLD, LANE_ROW))
             self._shape = (n_worlds, n_aircraft)
         return self.grad, self.command
 
@@ -843,8 +1340,9 @@ class KernelScratch:
         key = (n_worlds, n_aircraft, n_record)
         if _REUSE_TRACES:
             for slot in (1 - self._newest, self._newest):
-                if self._trace_keys[slot] == key and _reference_counts(self, slot) == _DROPPED_COUNTS:
-                    trace = self._traces[slot]
+                # No local name for the trace before its counts are read: it would be one more.
+                if self._slots[slot][2] == key and _reference_counts(self, slot) == _DROPPED_COUNTS:
+                    trace = self._slots[slot][0]
                     if n_record:
                         trace.record.fill(0.0)
                     self._newest = slot
@@ -862,9 +1360,7 @@ class KernelScratch:
             record=np.zeros((n_worlds, n_record, n_aircraft, N_RECORD)),
         )
         slot = 1 - self._newest  # the older one makes way
-        self._traces[slot] = trace
-        self._trace_arrays[slot] = tuple(trace.__dict__.values())
-        self._trace_keys[slot] = key
+        self._slots[slot] = (trace, tuple(trace.__dict__.values()), key)
         self._newest = slot
         return trace
 
@@ -872,7 +1368,9 @@ class KernelScratch:
 def _reference_counts(scratch: KernelScratch, slot: int) -> tuple[int, tuple[int, ...]]:
     """References to ``scratch``'s trace in ``slot`` and to each of its arrays (CPython's
     counts)."""
-    return sys.getrefcount(scratch._traces[slot]), tuple(map(sys.getrefcount, scratch._trace_arrays[slot]))
+    trace, arrays, _ = scratch._slots[slot]
+    # ``trace`` here is one reference more; ``_DROPPED_COUNTS`` is measured through this function too.
+    return sys.getrefcount(trace), tuple(map(sys.getrefcount, arrays))
 
 
 def _counts_when_dropped() -> tuple[int, tuple[int, ...]]:
@@ -1106,6 +1604,9 @@ def advance(
         trace.violated,
         trace.record,
         max(record_every, 1),
+        scratch.lanes,
+        scratch.lane_temp,
+        scratch.lane_world,
     )
     if outcome == _BAD_INPUT:
         _check_inputs(state, waypoints, wind_kt, seconds, params, record_every)  # raises, naming the input

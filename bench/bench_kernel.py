@@ -28,6 +28,7 @@ from frozen_kernel import kernel as frozen
 import numba
 
 from atc_nf_env import kernel as current
+from atc_nf_env import nf, trig
 from atc_nf_env.config import SimConfig
 from atc_nf_env.scenarios import Scenario, converging
 from atc_nf_env.units import DECISION_PERIOD_S
@@ -89,20 +90,28 @@ class Case:
         return elapsed
 
 
-@numba.njit(cache=True)
-def _law_transcendentals(x: np.ndarray, y: np.ndarray, heading: np.ndarray) -> float:
-    """The libm calls one aircraft-step of the law needs, for each element: atan2 of the
-    gradient (θ_nh) and the cosine and sine of the heading (compiled as the kernel is, so
-    the pair becomes one sincos call)."""
-    total = 0.0
+@numba.njit(cache=True, fastmath=nf.FAST_MATH_FLAGS, error_model="numpy")
+def _own_trig(x: np.ndarray, y: np.ndarray, heading: np.ndarray, out: np.ndarray) -> None:
+    """The law's atan2 of the gradient (θ_nh) and sincos of the heading per element, with
+    the kernel's own functions (``atc_nf_env.trig``) in a loop LLVM vectorizes, as the lane
+    step's loops over worlds are."""
     for k in range(x.shape[0]):
-        total += math.atan2(y[k], x[k]) + math.cos(heading[k]) + math.sin(heading[k])
-    return total
+        s, c = trig.poly_sincos(heading[k])
+        out[k] = trig.poly_atan2(y[k], x[k]) + c + s
+
+
+@numba.njit(cache=True, fastmath=nf.FAST_MATH_FLAGS, error_model="numpy")
+def _libm_trig(x: np.ndarray, y: np.ndarray, heading: np.ndarray, out: np.ndarray) -> None:
+    """The same with libm's atan2, cos and sin (one sincos call), which the kernel called
+    before it had its own."""
+    for k in range(x.shape[0]):
+        out[k] = math.atan2(y[k], x[k]) + math.cos(heading[k]) + math.sin(heading[k])
 
 
 def transcendental_floor(rounds: int) -> dict[str, float]:
     """Single-threaded: ns per aircraft-step of the current kernel (B = 1000, N = 4) and ns
-    of the three libm calls an aircraft-step needs, timed alternately (medians over rounds)."""
+    of the law's atan2 and sincos per aircraft-step, the kernel's own and libm's, timed
+    alternately (medians over rounds)."""
     threads = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
@@ -114,17 +123,21 @@ def transcendental_floor(rounds: int) -> dict[str, float]:
         heading = np.ascontiguousarray(trace.record[:, 1:, :, current.R_HEADING].reshape(-1))
         offset = np.random.default_rng(1).normal(0.0, 0.2, heading.shape)
         x, y = 0.3 * np.cos(heading + offset), 0.3 * np.sin(heading + offset)
-        _law_transcendentals(x, y, heading)
+        out = np.empty_like(heading)
+        loops = {"own_ns": _own_trig, "libm_ns": _libm_trig}
+        for loop in loops.values():
+            loop(x, y, heading, out)
         case.seconds(case.start.copy())
-        step_ns, libm_ns = [], []
+        times: dict[str, list[float]] = {"step_ns": [], **{name: [] for name in loops}}
         for _ in range(rounds):
-            step_ns.append(case.seconds(case.start.copy()) / case.aircraft_steps * 1e9)
-            t0 = time.perf_counter()
-            _law_transcendentals(x, y, heading)
-            libm_ns.append((time.perf_counter() - t0) / case.aircraft_steps * 1e9)
+            times["step_ns"].append(case.seconds(case.start.copy()) / case.aircraft_steps * 1e9)
+            for name, loop in loops.items():
+                t0 = time.perf_counter()
+                loop(x, y, heading, out)
+                times[name].append((time.perf_counter() - t0) / case.aircraft_steps * 1e9)
     finally:
         numba.set_num_threads(threads)
-    return {"step_ns": statistics.median(step_ns), "libm_ns": statistics.median(libm_ns)}
+    return {name: statistics.median(values) for name, values in times.items()}
 
 
 def first_call_seconds() -> dict[str, float]:
@@ -193,8 +206,8 @@ def main(argv: list[str] | None = None) -> int:
             )
             print(rows[-1], flush=True)
     floor = transcendental_floor(args.rounds)
-    print(f"one thread: {floor['step_ns']:.1f} ns per aircraft-step, of which libm calls {floor['libm_ns']:.1f} ns",
-          flush=True)
+    print(f"one thread: {floor['step_ns']:.1f} ns per aircraft-step; atan2 + sincos alone: the kernel's own "
+          f"{floor['own_ns']:.1f} ns, libm's {floor['libm_ns']:.1f} ns", flush=True)
     text = "\n".join(
         [
             "## Kernel throughput",
@@ -222,27 +235,33 @@ def main(argv: list[str] | None = None) -> int:
             "the current kernel also flies the right-hand rule at the NF's saddle (guard 9), work "
             "the frozen copy does not do; its proximity gradients evaluate each neighbour's bump once "
             "instead of twice, and it skips the 1/P_i division where that term is exactly zero (both "
-            "bit for bit); and its world loop is compiled without numba's reference counts "
+            "bit for bit); its world loop is compiled without numba's reference counts "
             "(`nf.NO_REFERENCE_COUNTS`), whose atomic increments and decrements on the arrays the "
             "inlined helpers pass took about a quarter of a one-world flight (sampled with `perf`; "
-            "the frozen copy still pays them). The kernel "
+            "the frozen copy still pays them); its atan2 and sincos are polynomials of its own "
+            "(`atc_nf_env.trig`, Cephes', within 2 ulps of libm: `tests/test_trig.py`), which vectorize; "
+            f"and batches of {current.LANE_MIN_WORLDS} worlds or more take the lane path, "
+            "which flies a world's step, where no pair is within the sensing radius and no guard acts, for "
+            f"chunks of {current.LANE_CHUNK} worlds at once in the lanes of SIMD registers (structure of "
+            "arrays, branches as selects), and the world's other steps by the scalar path, the same "
+            "arithmetic (`tests/test_kernel_lanes.py`; `bench/kernel_trajectory_hash.py` compares builds). "
+            "Every world of this benchmark's period is ordinary. The kernel "
             "keeps only the fast-math flags that cannot change a finite result, so that a world "
             "flies bit for bit the same alone or in a batch of any size. Absolute rates move with "
             "the machine's load; the ratios, measured side by side, are what to compare between runs.",
             "",
             f"Where a step's time goes, on one thread (B = 1000, N = 4, medians over {args.rounds} rounds "
-            f"timed alternately): {floor['step_ns']:.0f} ns per aircraft-step, of which "
-            f"{floor['libm_ns']:.0f} ns ({floor['libm_ns'] / floor['step_ns']:.0%}) are the three libm "
-            "calls the law needs per aircraft and step (atan2 of the gradient for θ_nh, cos and sin of "
-            "the heading, the pair fused into one sincos), timed alone on the benchmark flight's own "
-            "headings (and gradient directions near them). The rest is the NF, the commands and the move: scalar code whose square roots "
-            "and divisions sit in one dependency chain per aircraft. Halving the step's time with the "
-            f"libm calls as they are would need that rest to fall to "
-            f"{(floor['step_ns'] / 2 - floor['libm_ns']) / (floor['step_ns'] - floor['libm_ns']):.0%} of "
-            "its time; the way there is to fly several worlds in the "
-            "lanes of one SIMD register, which the per-world loop of this kernel does not do "
-            "(`bench/layout_probe.py` measures the NF's core in that layout, BENCHMARKS.md \"A probe for the "
-            "kernel's layout\"), and libm calls that are bit for bit the same in a vector lane as alone.",
+            f"timed alternately): {floor['step_ns']:.0f} ns per aircraft-step, nearly all of them lane "
+            "steps. The law's atan2 (of the gradient, for θ_nh) and sincos (of the heading) per "
+            "aircraft-step, timed alone on the benchmark flight's own headings (and gradient directions "
+            "near them) in a loop over them like the lane step's: the kernel's own functions "
+            f"(`atc_nf_env.trig`) {floor['own_ns']:.1f} ns ({floor['own_ns'] / floor['step_ns']:.0%} of the "
+            f"step), libm's, which the kernel called before it had its own, {floor['libm_ns']:.1f} ns "
+            "(libm has no vector form that gives its scalar bits, so those were scalar calls even in the "
+            "lanes). One world (B = 1, the safety filter's prediction) is flown by the scalar path, one "
+            "aircraft after another, whose divisions and square roots sit in one dependency chain per "
+            "aircraft: there the kernel's own functions are about as fast as libm's "
+            "(`bench/experiments/trig_probe.py`).",
         ]
     )
     return publish("kernel", text, args.write)

@@ -1,4 +1,4 @@
-"""A probe for the kernel's next layout: the NF's proximity term over many worlds, per world
+"""A probe for the kernel's lane layout: the NF's proximity term over many worlds, per world
 with branches (as the kernel flies it) against structure of arrays without branches.
 
 For aircraft 0 of each of B worlds of N aircraft (positions from a converging-N start
@@ -16,9 +16,9 @@ f_i simplified to a0 (1 − G_0), and the gradients with respect to the neighbou
 Both are compiled with the kernel's fast-math flags and must give the same numbers bit for
 bit (checked); reported: ns per aircraft-evaluation on one thread (medians over rounds
 timed alternately), their ratio, and the packed square roots and divisions in the second's
-machine code (its vectorization). This is the NF's core alone, not the kernel: the kernel
-also flies atan2 and sincos per aircraft-step (their share of a step: BENCHMARKS.md, "Kernel
-throughput"), which have no vector form that is bit for bit the scalar one.
+machine code (its vectorization). This is the NF's core alone, not the kernel. It is the
+probe that led to the kernel's lane path (``kernel._advance_lanes``), which flies a world's
+ordinary steps in this layout; it stays as a measure of the layout alone.
 
 Run: python bench/layout_probe.py [--rounds 31] [--write]
 """
@@ -180,14 +180,12 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"The second's machine code holds {ops['vsqrtpd']} packed square root(s) and {ops['vdivpd']} packed "
         "division(s)" + (": LLVM flies several worlds per instruction there" if min(ops.values()) > 0 else
-                         ": LLVM did not vectorize all of it") + ". This is the NF's core alone: the "
-        "kernel's step also needs atan2 and sincos per aircraft (their share of a step is in \"Kernel "
-        "throughput\"), which have no vector form "
-        "bit for bit the scalar one, and guards that branch per world (a refined step is flown in sub-steps). "
-        f"What it shows: this part of the scalar code that is the rest of a kernel step ran {min(ratios):.1f}–"
-        f"{max(ratios):.1f}× faster in this layout with the same numbers (the more neighbours in range, the more "
-        "the branches cost); a kernel in this layout is the way to the issue's 2× that the per-world kernel "
-        "does not take. One call per B worlds: the call's own cost is spread over B.",
+                         ": LLVM did not vectorize all of it") + ". This is the NF's core alone: "
+        f"this part of a kernel step ran {min(ratios):.1f}–{max(ratios):.1f}× faster in this layout with the "
+        "same numbers (the more neighbours in range, the more the branches cost). The kernel's lane path "
+        "(\"Kernel throughput\") flies a world's ordinary steps, those with no pair in range and no guard "
+        "acting, in this layout; its other steps branch per world on the scalar path. One call per B worlds: "
+        "the call's own cost is spread over B.",
     ])
     return publish("layout-probe", text, args.write)
 

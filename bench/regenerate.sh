@@ -69,7 +69,5 @@ if [[ $WHAT == all || $WHAT == benchmarks ]]; then
     run substep-watch "$PYTHON" bench/substep_watch_study.py --seeds 8 --write
     run agent-forward "$PYTHON" bench/bench_agent_forward.py --seeds 20 --scenarios converging-4,random-6 --write
     run layout-probe "$PYTHON" bench/layout_probe.py --rounds 31 --write
-    run soa-step-probe "$PYTHON" bench/soa_step_probe.py --rounds 41 --write
-    run soa-dense-probe "$PYTHON" bench/soa_dense_probe.py --rounds 41 --worlds 2000 --start-min 30 --write
 fi
 echo "regenerated ($WHAT) on build $("$PYTHON" -c 'from atc_nf_env import build; print(build.fingerprint())')"

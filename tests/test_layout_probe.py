@@ -38,30 +38,3 @@ def test_the_branch_free_layout_gives_the_kernels_numbers_bit_for_bit(pos, waypo
                         np.empty(n_worlds), second)
     assert np.isfinite(first).all()  # the workspace is far wider than these positions: real numbers
     assert np.array_equal(first, second)
-
-
-def test_the_structure_of_arrays_step_flies_the_kernels_ordinary_steps_bit_for_bit() -> None:
-    """``bench/soa_step_probe.py`` times its layout only after its flight of a whole period
-    equals the kernel's bit for bit (``measure`` raises otherwise); numba's threads are left
-    as they were."""
-    import numba
-    from soa_step_probe import measure
-
-    threads = numba.get_num_threads()
-    for n_aircraft in (4, 6):
-        result = measure(40, n_aircraft, rounds=1)
-        assert result["kernel"] > 0 and result["probe"] > 0
-    assert numba.get_num_threads() == threads
-
-
-def test_the_structure_of_arrays_step_with_neighbours_flies_the_kernels_steps_bit_for_bit() -> None:
-    """``bench/soa_dense_probe.py``: random traffic in which some aircraft feel their
-    neighbours, flown for a period; ``measure`` raises unless the final states are the
-    kernel's bit for bit, and the case must include neighbours in range."""
-    import numba
-    from soa_dense_probe import measure
-
-    threads = numba.get_num_threads()
-    result = measure("random-6", 120, 30.0, rounds=1)
-    assert result["worlds"] > 0 and result["near"] > 0.0  # neighbour terms were flown, not only far aircraft
-    assert numba.get_num_threads() == threads

@@ -1,6 +1,5 @@
 """The kernel's first compilation: import, then the first ``advance`` of one world and of 32
-worlds (the scalar path and the batch path: with bench/experiments/kernel_lane_path.patch
-applied, the lane path), timed. Run it with an empty numba cache so that it compiles
+worlds (the scalar path and the lane path), timed. Run it with an empty numba cache so that it compiles
 rather than loads, e.g.
 
     NUMBA_CACHE_DIR=$(mktemp -d) python bench/experiments/kernel_compile_time.py

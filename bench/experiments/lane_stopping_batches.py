@@ -1,5 +1,5 @@
-"""With bench/experiments/kernel_lane_path.patch applied: the lane path against the scalar
-batch on candidate sets that stop at once, side by side.
+"""The kernel's lane path against its scalar batch on candidate sets that stop at once, side
+by side.
 
 B = 1000 copies of one mid-encounter state (converging-6 at 25 min, random-16 and random-6
 at 20 min, seed 3, flown there by the NF alone without wind), each aimed at waypoints
@@ -27,7 +27,7 @@ from atc_nf_env.simulation import initial_state
 
 def main() -> int:
     if not hasattr(K, "_advance_lanes"):
-        print("the kernel has no lane path: apply bench/experiments/kernel_lane_path.patch first")
+        print("this kernel has no lane path (kernel._advance_lanes)")
         return 1
     for spec, t_min in (("converging-6", 25), ("random-16", 20), ("random-6", 20)):
         scenario = make_scenario(spec, seed=3)
