@@ -264,8 +264,8 @@ def main(argv: list[str] | None = None) -> int:
             "(`bench/experiments/trig_probe.py`); the kernel does not inline them so, for its compile time "
             "(README.md, status table, simulator core, gives the side-by-side run). One world (B = 1, the safety filter's prediction) is flown by the scalar path, one "
             "aircraft after another, whose divisions and square roots sit in one dependency chain per "
-            "aircraft: there the kernel's own functions are about as fast as libm's "
-            "(`bench/experiments/trig_probe.py`).",
+            "aircraft: there the kernel's own functions gain little over libm's, in a chain of dependent "
+            "calls (`bench/experiments/trig_probe.py`).",
         ]
     )
     return publish("kernel", text, args.write)

@@ -10,7 +10,8 @@ and what it would cost in accuracy, before the kernel took them, and still does:
 - accuracy: the largest error in ulps of the double result against libm over random
   arguments (headings in [-3π, 3π], gradient components of any sign and scale);
 - speed: ns per call in a loop over 4096 arguments, for libm and for ours, alternately
-  over rounds (medians); ours in a loop LLVM can vectorize, libm's as the kernel called it;
+  over rounds (medians); ours inlined at numba's level in a loop LLVM can vectorize, libm's
+  as the kernel called it;
   and both in a chain where each argument depends on the last result, which cannot be
   vectorized (one aircraft's steps on the scalar path).
 
@@ -27,8 +28,13 @@ import time
 import numpy as np
 from numba import njit
 
+from atc_nf_env import trig
 from atc_nf_env.nf import FAST_MATH_FLAGS
-from atc_nf_env.trig import poly_atan2, poly_sincos
+
+# The kernel's functions inlined at numba's level, as LLVM needs them to vectorize a loop of
+# them (the kernel itself calls them without this inlining, for its compile time).
+poly_atan2 = njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")(trig.poly_atan2.py_func)
+poly_sincos = njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")(trig.poly_sincos.py_func)
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
