@@ -28,10 +28,12 @@ RULE_OFF = {"right_turn_deg": 0.0}
 @pytest.mark.parametrize("n", [3, 4, 5, 6, 7, 8])
 def test_halving_the_step_moves_the_minimum_separation_little(n):
     # The exact encounter is one draw from the spread that rounding-sized perturbations
-    # give: starts perturbed by 1e-9 nm move by up to 0.32 nm each on halving 5 s
-    # (converging-5, 16 starts), while their mean moves by less than 0.2 nm (the ensemble
-    # test below). So the bound here is the draws' spread, not the goal. Before guard 8's
-    # watch the exact encounters moved by up to 0.30 nm, before the right-hand rule 2.1 nm.
+    # give: 16 starts perturbed by 1e-9 nm spread over up to 0.5 nm at one step (converging-5
+    # at 5 s: 9.77-10.27 nm, `bench/integration_step_study.py`), while their mean moves by
+    # less than 0.2 nm on halving (the ensemble test below). So the bound here is about the
+    # draws' spread, not the goal. The exact converging-5 draw moves 0.33 nm with the
+    # kernel's own trig functions (0.09 nm with libm's); before guard 8's watch the exact
+    # encounters moved by up to 0.30 nm, before the right-hand rule 2.1 nm.
     runs = saddle_separations("default", {}, n, (5.0, 2.5, 1.25, 0.625))
     seps = [sep for sep, _, _ in runs]
     assert all(los == 0 and home for _, los, home in runs), runs
