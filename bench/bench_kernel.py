@@ -93,8 +93,8 @@ class Case:
 @numba.njit(cache=True, fastmath=nf.FAST_MATH_FLAGS, error_model="numpy")
 def _own_trig(x: np.ndarray, y: np.ndarray, heading: np.ndarray, out: np.ndarray) -> None:
     """The law's atan2 of the gradient (θ_nh) and sincos of the heading per element, with
-    the kernel's own functions (``atc_nf_env.trig``) in a loop LLVM vectorizes, as the lane
-    step's loops over worlds are."""
+    the kernel's own functions (``atc_nf_env.trig``) called as the lane step calls them in its
+    loops over worlds (numba functions, not inlined at numba's level)."""
     for k in range(x.shape[0]):
         s, c = trig.poly_sincos(heading[k])
         out[k] = trig.poly_atan2(y[k], x[k]) + c + s
