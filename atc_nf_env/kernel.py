@@ -10,7 +10,10 @@ its inputs' values and of its result run in the same compiled call as the flight
 A batch of ``LANE_MIN_WORLDS`` worlds or more takes the lane path (see the section of that
 name below): a world's ordinary steps, with no neighbour in range and no guard acting, are
 flown for chunks of worlds at once in SIMD lanes, its other steps by the scalar path, in the
-same arithmetic; a world flies bit for bit the same trajectory either way.
+same arithmetic; a world flies bit for bit the same trajectory either way. On the scalar
+path (one world, small batches, the safety filter's prediction) the same ordinary steps
+are flown by ``_ordinary_step``, the lane step's arithmetic for one world without the
+neighbour loops and the guards' branches, the other steps by the general path.
 
 Physics per aircraft i, integrated at ``dt_s`` with the second-order Adams-Bashforth
 scheme (explicit Euler on the first step under a new waypoint) (paper (1), (5)):
@@ -203,7 +206,9 @@ C_DPHI_DT = 10  # ∂Φ_i/∂t of (5a), per s
 C_RIGHT_TURN = 11  # weight in [0, 1] of the right-hand rule (guard 9)
 C_STEP_MIN = 12  # lowest airspeed over the sub-steps flown in this step, kt
 C_STEP_MAX = 13  # highest, kt
-N_COMMAND = 14
+# A one-world ordinary step's move, held until the step proves ordinary (``_ordinary_step``).
+C_X1, C_Y1, C_HEADING1, C_VX, C_VY, C_STEP_NM = 14, 15, 16, 17, 18, 19
+N_COMMAND = 20
 
 # Record fields (optional per-step recording).
 R_X, R_Y, R_HEADING, R_AIRSPEED, R_FLEW = 0, 1, 2, 3, 4  # R_FLEW: 1 if it flew that step
@@ -474,6 +479,153 @@ def _record_step(state: np.ndarray, command: np.ndarray, record: np.ndarray, ste
             record[r, i, R_AIRSPEED_MAX] = command[i, C_STEP_MAX] if flew_step else state[i, S_AIRSPEED]
 
 
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
+def _ordinary_step(
+    state: np.ndarray,
+    command: np.ndarray,
+    wind_x: float,
+    wind_y: float,
+    params: np.ndarray,
+    nf_consts: tuple,
+    min_sep2: float,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+) -> tuple[bool, bool, float]:
+    """One integration step of one world by the lane step's arithmetic, where it is
+    ordinary: every flying aircraft without a flying neighbour within the sensing radius,
+    no command at the cap, no angle beyond 3π, no arrival or departure within reach and no
+    loss of separation after the move (k = 2 only). The aircraft not flying are left as
+    they are, as the scalar path leaves them. Returns (whether it flew the step: if not,
+    nothing was written but ``command``'s scratch columns, and the scalar path flies it;
+    whether an airspeed left the envelope; the smallest squared separation so far, nm²).
+
+    The same operations as ``_commands`` and the move of ``_advance_world`` for such a
+    step (the lane step's), without the neighbour loops, the second pass and the guards'
+    branches: the same bits (``tests/test_kernel_ordinary_step.py``), in less time
+    (``bench/bench_kernel.py`` at B = 1). Compiled on its own, not inlined into
+    ``_advance_world``: inlined, it lengthened the kernel's first compilation more (in one
+    run, by 24 s against 16 s, on 73 s)."""
+    n = state.shape[0]
+    inv_len = nf_consts[0]
+    r_sense2 = nf_consts[7]
+    dt = params[P_DT]
+    inv_dt = 1.0 / dt
+    k_theta = params[P_K_THETA]
+    u_cap = params[P_U_CAP]
+    delta = params[P_DELTA]
+    sep_min = params[P_SEP_MIN]
+    exit_radius = params[P_R_WORLD] - params[P_RADIUS]
+    # No two flying aircraft within the sensing radius, in the NF's own arithmetic (its test
+    # is symmetric in the pair: q_j − q_i is exactly −(q_i − q_j)).
+    any_flying = False
+    for i in range(n):
+        if state[i, S_STATUS] != FLYING:
+            continue
+        any_flying = True
+        xi = state[i, S_X] * inv_len
+        yi = state[i, S_Y] * inv_len
+        for j in range(i + 1, n):
+            if state[j, S_STATUS] != FLYING:
+                continue
+            rx = xi - state[j, S_X] * inv_len
+            ry = yi - state[j, S_Y] * inv_len
+            if rx * rx + ry * ry < r_sense2:
+                return False, False, min_sep2
+    if not any_flying:
+        return False, False, min_sep2
+    for i in range(n):
+        if state[i, S_STATUS] != FLYING:
+            continue
+        x0 = state[i, S_X]
+        y0 = state[i, S_Y]
+        wp_x = state[i, S_WP_X]
+        wp_y = state[i, S_WP_Y]
+        heading = state[i, S_HEADING]
+        gx, gy, _, sgn_along = nf.own_gradient_alone(x0, y0, wp_x, wp_y, state[i, S_COS_D], state[i, S_SIN_D],
+                                                     nf_consts)
+        atan2_nh = trig.poly_atan2_inlined(sgn_along * gy, sgn_along * gx)
+        sin_h, cos_h = trig.poly_sincos_inlined(heading)
+        u, theta_nh = _lane_feedback(gx, gy, cos_h, sin_h, (x0 - wp_x) * inv_len, (y0 - wp_y) * inv_len, atan2_nh,
+                                     state[i, S_THETA_D], params)
+        if not -u_cap < u < u_cap:
+            return False, False, min_sep2
+        x1, y1, heading1, vx, vy, omega, far = _lane_move(
+            u, cos_h, sin_h, wind_x, wind_y, x0, y0, heading, theta_nh, state[i, S_THETA_NH], state[i, S_FRESH],
+            state[i, S_LAST_SUBSTEPS], state[i, S_VX_PREV], state[i, S_VY_PREV], state[i, S_OMEGA_PREV], dt, inv_dt,
+            k_theta,
+        )
+        step_nm = math.sqrt((x1 - x0) * (x1 - x0) + (y1 - y0) * (y1 - y0))
+        ex = x1 - state[i, S_DEST_X]
+        ey = y1 - state[i, S_DEST_Y]
+        reach = delta + step_nm
+        if far or ex * ex + ey * ey <= reach * reach or x1 * x1 + y1 * y1 >= exit_radius * exit_radius:
+            return False, False, min_sep2
+        command[i, C_X1] = x1
+        command[i, C_Y1] = y1
+        command[i, C_HEADING1] = heading1
+        command[i, C_VX] = vx
+        command[i, C_VY] = vy
+        command[i, C_OMEGA] = omega
+        command[i, C_U] = u
+        command[i, C_THETA_NH] = theta_nh
+        command[i, C_STEP_NM] = step_nm
+    new_min_sep2 = min_sep2
+    for i in range(n):
+        if state[i, S_STATUS] != FLYING:
+            continue
+        for j in range(i + 1, n):
+            if state[j, S_STATUS] != FLYING:
+                continue
+            sx = command[i, C_X1] - command[j, C_X1]
+            sy = command[i, C_Y1] - command[j, C_Y1]
+            sep2 = sx * sx + sy * sy
+            if sep2 < sep_min * sep_min:
+                return False, False, min_sep2
+            new_min_sep2 = min(new_min_sep2, sep2)
+    # Ordinary: the step as ``_advance_world`` writes it.
+    u_min = params[P_U_MIN]
+    u_max = params[P_U_MAX]
+    step_violation = False
+    for i in range(n):
+        command[i, C_VIOLATED] = 0.0
+        if state[i, S_STATUS] != FLYING:
+            command[i, C_FLEW] = 0.0
+            continue
+        u = command[i, C_U]
+        state[i, S_VX_PREV] = command[i, C_VX]
+        state[i, S_VY_PREV] = command[i, C_VY]
+        state[i, S_OMEGA_PREV] = command[i, C_OMEGA]
+        state[i, S_LAST_SUBSTEPS] = 1.0
+        state[i, S_X] = command[i, C_X1]
+        state[i, S_Y] = command[i, C_Y1]
+        state[i, S_HEADING] = command[i, C_HEADING1]
+        state[i, S_AIRSPEED] = u
+        state[i, S_THETA_NH] = command[i, C_THETA_NH]
+        state[i, S_FRESH] = 0.0
+        state[i, S_TIME] += dt
+        state[i, S_PATH] += command[i, C_STEP_NM]
+        command[i, C_FLEW] = 1.0
+        command[i, C_STEP_MIN] = u
+        command[i, C_STEP_MAX] = u
+        first_flown = steps_flown[i] == 0
+        if first_flown or u < min_airspeed[i]:
+            min_airspeed[i] = u
+        if first_flown or u > max_airspeed[i]:
+            max_airspeed[i] = u
+        excursion = max(u_min - u, u - u_max)
+        if excursion > 0.0:
+            step_violation = True
+            if excursion > worst_excursion[i]:
+                worst_excursion[i] = excursion
+            violation_steps[i] += 1
+            command[i, C_VIOLATED] = 1.0
+        steps_flown[i] += 1
+    return True, step_violation, new_min_sep2
+
+
 # Without reference counts (``nf.NO_REFERENCE_COUNTS``): it allocates nothing, and the counts
 # of the arrays its inlined helpers pass took about a quarter of a one-world flight.
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
@@ -494,8 +646,11 @@ def _advance_world(
     los_pairs: np.ndarray,
     record: np.ndarray,
     record_every: int,
+    ordinary_steps: bool,
 ) -> tuple[float, int, bool]:
-    """Advance one world by n_steps; returns (min separation, steps done, violated)."""
+    """Advance one world by n_steps; returns (min separation, steps done, violated).
+    ``ordinary_steps``: fly the ordinary steps by ``_ordinary_step`` (every caller; False
+    flies every step by the general path, which the tests compare it with)."""
     n = state.shape[0]
     dt = params[P_DT]
     u_min = params[P_U_MIN]
@@ -518,8 +673,23 @@ def _advance_world(
     sep_min2 = sep_min * sep_min
     violated = False
 
+    # The ordinary steps by ``_ordinary_step`` (its arithmetic is for k = 2 only).
+    ordinary_law = ordinary_steps and params[nf.P_K] == 2.0
     step = 0
     while step < n_steps:
+        if ordinary_law:
+            flew, step_violation, min_sep2 = _ordinary_step(
+                state, command, wind_x, wind_y, params, nf_consts, min_sep2, min_airspeed, max_airspeed,
+                violation_steps, worst_excursion, steps_flown,
+            )
+            if flew:
+                step += 1
+                _record_step(state, command, record, step, record_every)
+                if step_violation:
+                    violated = True
+                    if stop_on_violation:
+                        break
+                continue
         any_flying, refine, outside = _commands(state, pos, status, grad, command, nf_consts, params, inv_dt)
         if not any_flying:
             break
@@ -691,6 +861,7 @@ def _advance_one(
         los_pairs[b],
         record[b],
         record_every,
+        True,
     )
     min_separation[b] = sep
     steps_done[b] = done
@@ -1099,6 +1270,7 @@ def _fly_lanes(
                 step_sep, flown, step_violation = _advance_world(
                     rows, step_waypoints, wind[b, 0], wind[b, 1], steps_left, params, grad[b], command[b],
                     step_min, step_max, step_violations, step_worst, step_flown, step_los, no_record, record_every,
+                    True,
                 )
                 for i in range(n):
                     for field in range(N_STATE):

@@ -212,7 +212,7 @@ def _first_safe(
                 waypoints = home
             _, done, violated = kernel._advance_world(
                 world, waypoints, wind[0], wind[1], period_steps, params, grad, command, min_airspeed,
-                max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, record, 1,
+                max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, record, 1, True,
             )
             if not kernel._all_finite(world):
                 return _NON_FINITE

@@ -6,8 +6,12 @@ cannot vectorize, and a vector form of them (SVML, libmvec) rounds differently f
 scalar one, so a world flown in a SIMD lane would not fly the same bits as alone. These
 polynomials are Cephes' (Stephen L. Moshier's Cephes Math Library: the rational atan of
 atan.c, the minimax sin and cos of sin.c with its three-part reduction), written with
-selects instead of branches: LLVM vectorizes them, and the scalar and the lane paths of
-the kernel compute the same bits from the same inlined code. They also make the
+selects instead of branches, so that a loop into which they are inlined can be
+vectorized. The kernel calls them, compiled on their own, from its lane step and its
+general scalar path, and inlines them (``poly_atan2_inlined``, ``poly_sincos_inlined``)
+into its one-world ordinary step: the same Python under the same flags, so every path
+computes the same bits (``tests/test_kernel_lanes.py``,
+``tests/test_kernel_ordinary_step.py``). They also make the
 kernel's trajectories independent of the host's libm, whose results differ between
 builds and CPUs (glibc picks an FMA variant where the CPU has one).
 
@@ -32,7 +36,6 @@ _P = (-8.750608600031904122785e-1, -1.615753718733365076637e1, -7.50085579231470
       -1.228866684490136173410e2, -6.485021904942025371773e1)
 _Q = (2.485846490142306297962e1, 1.650270098316988542046e2, 4.328810604912902668951e2,
       4.853903996359136964868e2, 1.945506571482613964425e2)
-_T3P8 = 2.41421356237309504880  # tan(3π/8)
 _MOREBITS = 6.123233995736765886130e-17  # π/2 − the double nearest π/2
 # Cephes sin.c: minimax polynomials on [0, π/4], the argument reduced by π/4 in three parts.
 _SIN = (1.58962301576546568060e-10, -2.50507477628578072866e-8, 2.75573136213857245213e-6,
@@ -100,3 +103,15 @@ def sincos(angle: float) -> tuple[float, float]:
     if abs(angle) <= SINCOS_POLY_LIMIT:
         return poly_sincos(angle)
     return math.sin(angle), math.cos(angle)
+
+
+# The same two functions inlined at numba's level into their caller: the kernel's one-world
+# ordinary step (``kernel._ordinary_step``, compiled on its own, so they lengthen only its
+# compilation). The lane step calls them instead: inlined into its vectorized loops they
+# lengthened the kernel's first compilation by about a third (README, simulator core:
+# ``bench/experiments/kernel_variant_ab.py --variant trig-inline``). The same Python under
+# the same flags: the same bits.
+poly_atan2_inlined = njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")(
+    poly_atan2.py_func)
+poly_sincos_inlined = njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")(
+    poly_sincos.py_func)
