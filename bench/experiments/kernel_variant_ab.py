@@ -13,7 +13,9 @@ Variants:
 - ``trig-inline``: the kernel's own atan2 and sincos (``atc_nf_env.trig``) inlined at
   numba's level (``inline="always"``), so that LLVM can vectorize them in the lane step;
 - ``commands-call``: the law's commands (``kernel._commands``) compiled as a function of
-  their own, called, instead of inlined at numba's level into the world loop.
+  their own, called, instead of inlined at numba's level into the world loop;
+- ``no-ordinary-step``: every step of the scalar path flown by its general code, none by
+  the one-world ordinary step (``kernel._ordinary_step``): the kernel before that step.
 
 Run: python bench/experiments/kernel_variant_ab.py --variant trig-inline [--rounds 11]
 """
@@ -35,6 +37,8 @@ VARIANTS = {
     "trig-inline": ("trig.py", f"{NJIT}\ndef poly_", NJIT[:-1] + ', inline="always")\ndef poly_', 2),
     "commands-call": ("kernel.py", NJIT[:-1] + ', inline="always")\ndef _commands(',
                       NJIT[:-1] + ", **NO_REFERENCE_COUNTS)\ndef _commands(", 1),
+    "no-ordinary-step": ("kernel.py", "ordinary_law = ordinary_steps and params[nf.P_K] == 2.0",
+                         "ordinary_law = False", 1),
 }
 
 
