@@ -245,7 +245,12 @@ def main(argv: list[str] | None = None) -> int:
             "which flies a world's step, where no pair is within the sensing radius and no guard acts, for "
             f"chunks of {current.LANE_CHUNK} worlds at once in the lanes of SIMD registers (structure of "
             "arrays, branches as selects), and the world's other steps by the scalar path, the same "
-            "arithmetic (`tests/test_kernel_lanes.py`; `bench/kernel_trajectory_hash.py` compares builds). "
+            "arithmetic (`tests/test_kernel_lanes.py`; `bench/kernel_trajectory_hash.py` compares builds); "
+            "on the scalar path (one world, smaller batches), the same ordinary steps are flown by a "
+            "one-world step of the lane step's arithmetic (`kernel._ordinary_step`, with the trig "
+            "functions inlined; `tests/test_kernel_ordinary_step.py` holds it to the general path's bits, "
+            "and `python bench/experiments/kernel_variant_ab.py --variant no-ordinary-step` times the "
+            "kernel without it). "
             "Every world of this benchmark's period is ordinary. The kernel "
             "keeps only the fast-math flags that cannot change a finite result, so that a world "
             "flies bit for bit the same alone or in a batch of any size. Absolute rates move with "
@@ -265,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
             "(README.md, status table, simulator core, gives the side-by-side run). One world (B = 1, the safety filter's prediction) is flown by the scalar path, one "
             "aircraft after another, whose divisions and square roots sit in one dependency chain per "
             "aircraft: there the kernel's own functions gain little over libm's, in a chain of dependent "
-            "calls (`bench/experiments/trig_probe.py`).",
+            "calls (`bench/experiments/trig_probe.py`); its ordinary steps inline them.",
         ]
     )
     return publish("kernel", text, args.write)
