@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import bench_envs  # noqa: E402  (bench/ on the path first)
+import bench_envs  # bench/ on the path first
 
 
 class WorldLoop:
