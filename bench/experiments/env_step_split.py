@@ -68,11 +68,10 @@ class AdvanceLoop:
 
 
 class InfoLoop:
-    """``ATCParallelEnv._info_list`` of every aircraft after one step."""
+    """``ATCParallelEnv._info_list`` of every aircraft after one step (``env`` just reset)."""
 
     def __init__(self, env) -> None:
         self.env = env
-        env.reset(seed=0)
         env._advance(np.zeros((len(env.agents), 2)))
 
     def run(self, calls: int) -> None:
