@@ -292,3 +292,48 @@ def test_a_copied_aec_env_flies_on_alone() -> None:
     for step in range(5):
         replay.step(np.full(2, 0.1, dtype=np.float32))
     assert_same_value_deep(replay.last(), last[1], "the deep copy")
+
+
+def test_the_compiled_period_flies_as_the_recorded_path_bit_for_bit() -> None:
+    """Without a render mode a world flies its period in one compiled call
+    (``centralized._fly_world_period``); with one, through ``Simulation.advance`` (the
+    renderer's trails) and the same bookkeeping in steps: both hand out the same bits."""
+    quick = atc_nf_env.parallel_env(scenario="random-5", expose_wind=True)
+    recorded = atc_nf_env.parallel_env(scenario="random-5", expose_wind=True, render_mode="rgb_array")
+    assert quick.world.record_every == 0 and recorded.world.record_every > 0
+    for seed in (4, 8):
+        rng = np.random.default_rng(seed)
+        assert_same_value_deep(quick.reset(seed=seed), recorded.reset(seed=seed), f"seed {seed}: reset")
+        steps = 0
+        while quick.agents:
+            actions = {agent: rng.uniform(-1.2, 1.2, 2) for agent in quick.agents}
+            assert_same_value_deep(quick.step(actions), recorded.step(actions), f"seed {seed}, step {steps}")
+            assert quick.state().tobytes() == recorded.state().tobytes()
+            assert quick.world.sim.time_s == recorded.world.sim.time_s
+            steps += 1
+        assert not recorded.agents and steps > 3
+    recorded.close()
+
+
+def test_the_compiled_period_raises_as_the_kernel_does_and_keeps_the_world() -> None:
+    """A NaN in the world's state (written by hand) or a flight that overflows raise the
+    kernel's errors, naming what was wrong, and leave the world's buffers as they were."""
+    from atc_nf_env.kernel import S_X
+
+    env = atc_nf_env.parallel_env(scenario="converging-3")
+    env.reset(seed=0)
+    world = env.world
+    before = (world.flying, world._flying_spare, world._distance, world._distance_spare, world.info)
+    world.sim.state[0, 1, S_X] = np.nan
+    with pytest.raises(ValueError, match="state contains NaN or inf"):
+        env.step({agent: np.zeros(2) for agent in env.agents})
+    assert all(a is b for a, b in zip(before, (world.flying, world._flying_spare, world._distance,
+                                               world._distance_spare, world.info)))
+    assert world.decisions == 0 and world.sim.time_s == 0.0
+    env.reset(seed=0)
+    world.sim.state[0, 1, S_X] = 1e308  # finite, but the flight's squares overflow
+    with pytest.raises(FloatingPointError, match="NaN or inf"):
+        env.step({agent: np.zeros(2) for agent in env.agents})
+    env.reset(seed=0)  # a reset brings the world back
+    observations, _, _, _, _ = env.step({agent: np.zeros(2) for agent in env.agents})
+    assert all(np.isfinite(obs).all() for obs in observations.values())

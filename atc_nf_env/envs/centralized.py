@@ -3,20 +3,17 @@ episode logic (``EncounterWorld``) that it shares with the PettingZoo env."""
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-
-from atc_nf_env.envs import EnvConfig, ScenarioSource, draw_episode_seed, episode_wind
-import math
-
 from numba import njit
 
-from atc_nf_env.scenarios import check_seed
 from atc_nf_env import kernel
+from atc_nf_env.envs import EnvConfig, ScenarioSource, draw_episode_seed, episode_wind
 from atc_nf_env.envs.actions import WORKSPACE_MARGIN_NM, _waypoints_from_state
 from atc_nf_env.envs.observations import ObservationSpec, _observe
 from atc_nf_env.envs.rewards import reward_weight_vector
@@ -34,8 +31,9 @@ from atc_nf_env.kernel import (
     S_X,
     S_Y,
     KernelScratch,
-
 )
+from atc_nf_env.nf import P_DT
+from atc_nf_env.scenarios import check_seed
 from atc_nf_env.simulation import Simulation
 from atc_nf_env.units import DECISION_PERIOD_S
 
@@ -149,6 +147,81 @@ def _world_after_period(
         )
 
 
+@njit(cache=True, error_model="numpy")
+def _fly_world_period(
+    actions: np.ndarray,
+    state: np.ndarray,
+    distance_nm: float,
+    span_nm: float,
+    angle_span_rad: float,
+    limit_nm: float,
+    wind: np.ndarray,
+    n_steps: int,
+    params: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    min_separation: np.ndarray,
+    steps_done: np.ndarray,
+    violated: np.ndarray,
+    record: np.ndarray,
+    flying_before: np.ndarray,
+    distance_before: np.ndarray,
+    weights: np.ndarray,
+    obs_args: np.ndarray,
+    n_neighbours: int,
+    expose_wind: bool,
+    scales: np.ndarray,
+    nearest: np.ndarray,
+    distance_after: np.ndarray,
+    flying_after: np.ndarray,
+    waypoints: np.ndarray,
+    obs: np.ndarray,
+    info: np.ndarray,
+    time_s: float,
+    limit_s: float,
+) -> int:
+    """One decision period of a single-world env in one compiled call: the actions (n, 2)
+    mapped to ``waypoints`` (1, n, 2) nm, the flight (``kernel.advance``'s compiled part,
+    the same code, so the same bits as ``advance`` and ``run_episode``), the episode's
+    time fraction after it into ``obs_args[0]`` (``time_s`` at the start of the period
+    and the time limit ``limit_s``, s) and ``_world_after_period``. Returns ``advance``'s outcome code; on anything but a finished
+    flight nothing after the flight is written (the caller raises as ``advance`` does).
+
+    Why one call: every call of a compiled function from Python pays about 0.2 µs per
+    argument to type and unpack it, and ``advance``'s Python checks and ``Trace`` cost
+    more; three calls and that glue took about a fifth of a converging-4 env step."""
+    _waypoints_from_state(actions.reshape((1, actions.shape[0], 2)), state, distance_nm, span_nm, angle_span_rad,
+                          limit_nm, waypoints)
+    # ``kernel._advance_checked``'s checks and flight for one world. Not that function
+    # itself: it reaches the parallel batch paths, and numba's cache cannot reload a
+    # function compiled against cached parallel code (the reload crashed).
+    if not (kernel._all_finite(params) and kernel._all_finite(state) and kernel._all_finite(waypoints)
+            and kernel._all_finite(wind)):
+        return kernel._BAD_INPUT
+    for index in kernel._POSITIVE_INDEX:
+        if not params[index] > 0.0:
+            return kernel._BAD_INPUT
+    kernel._advance_one(
+        0, state, waypoints, wind, n_steps, params, grad, command, min_airspeed, max_airspeed, violation_steps,
+        worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record, 1,
+    )
+    outcome = kernel._DONE if kernel._all_finite(state) else kernel._NON_FINITE_RESULT
+    if outcome == kernel._DONE:
+        obs_args[0] = min(1.0, (time_s + steps_done[0] * params[P_DT]) / limit_s)
+        _world_after_period(
+            state, actions, flying_before, distance_before, min_airspeed, max_airspeed, violation_steps, steps_flown,
+            los_pairs, weights, obs_args, wind, n_neighbours, expose_wind, scales, obs, nearest, info,
+            distance_after, flying_after,
+        )
+    return outcome
+
+
 @njit(cache=True)
 def all_finite(values: np.ndarray) -> bool:
     """Whether every value of a float64 array is finite (one compiled pass: numpy's
@@ -165,8 +238,10 @@ class EncounterWorld:
 
     Used by the centralized Gymnasium env and the PettingZoo env; the vector env runs the
     same logic over B worlds in one kernel call (``atc_nf_env.envs.vector``). Without a
-    render mode the world calls the kernel directly (``Simulation.stats`` is then not
-    kept: the infos carry the same figures step by step).
+    render mode the world flies a period in one compiled call (``_fly_world_period``:
+    the action mapping, the kernel's one-world flight and the step's observations,
+    rewards and infos; ``Simulation.stats`` is then not kept: the infos carry the same
+    figures step by step).
     """
 
     def __init__(self, cfg: EnvConfig, where: str) -> None:
@@ -184,6 +259,11 @@ class EncounterWorld:
         self._reward_weights = reward_weight_vector(cfg.reward_weights)
         self._scratch = KernelScratch()
         self._dt_s = float(cfg.config.dt_s)
+        self._period_steps = kernel.steps_for(DECISION_PERIOD_S, self._dt_s)
+        # The compiled period's buffers, kept for the world's life: the kernel's scratch and
+        # a trace of its own (read by ``_world_after_period`` within the same call).
+        self._grad, self._command = self._scratch.get(1, self.source.n_aircraft)
+        self._trace = KernelScratch().trace(1, self.source.n_aircraft, 0)
         mapping = cfg.action_mapping
         self._mapping = (
             float(mapping.distance_nm),
@@ -311,28 +391,66 @@ class EncounterWorld:
         ``flying`` and the observations describe the step. The observations, ``info`` and
         ``last_waypoints`` are fresh arrays every step (the envs hand out views of them);
         ``flying`` and the distances to go alternate between two buffers of the world's
-        own (read them, or copy them, before the next step)."""
+        own (read them, or copy them, before the next step).
+
+        Raises:
+            ValueError: the flight's inputs hold a NaN or inf (as ``kernel.advance``).
+            FloatingPointError: the flight produced a NaN or inf (as ``kernel.advance``).
+        """
         sim = self.sim
         assert sim is not None
         state = sim.state
         n = self.n_aircraft
         waypoints = np.empty((1, n, 2))
-        distance_nm, span_nm, angle_span_rad, limit_nm = self._mapping
-        _waypoints_from_state(actions.reshape(1, n, 2), state, distance_nm, span_nm, angle_span_rad, limit_nm, waypoints)
-        self.last_waypoints = waypoints[0]
         if self.record_every:
+            distance_nm, span_nm, angle_span_rad, limit_nm = self._mapping
+            _waypoints_from_state(actions.reshape(1, n, 2), state, distance_nm, span_nm, angle_span_rad, limit_nm,
+                                  waypoints)
             trace = sim.advance(waypoints[0], DECISION_PERIOD_S)
-        else:
-            trace = kernel.advance(state, waypoints, self._wind, DECISION_PERIOD_S, sim.params, scratch=self._scratch)
-            sim.time_s += trace.steps_done.item() * self._dt_s
+            self._time_fraction[0] = min(1.0, sim.time_s / self._limit_s)
+            self._after_period(actions, waypoints, trace)
+            return
+        trace = self._trace
+        obs = np.empty((1, self.n_slots, self._obs_dim), dtype=np.float32)
+        info = np.empty(n, dtype=INFO_RECORD)
+        distance, self._distance_spare = self._distance_spare, self._distance
+        flying, self._flying_spare = self._flying_spare, self.flying
+        outcome = _fly_world_period(
+            actions, state, *self._mapping, self._wind, self._period_steps, sim.params, self._grad, self._command,
+            trace.min_airspeed_kt, trace.max_airspeed_kt, trace.violation_steps, trace.worst_excursion_kt,
+            trace.steps_flown, trace.los_pairs, trace.min_separation_nm, trace.steps_done, trace.violated,
+            trace.record, self._flying_spare,
+            self._distance_spare, self._reward_weights, self._time_fraction, self._n_neighbours, self._expose_wind,
+            self._scales, self._nearest_buffer, distance, flying, waypoints, obs, info, sim.time_s, self._limit_s,
+        )
+        if outcome != kernel._DONE:
+            # Put the buffers back as they were, then raise as ``advance`` would.
+            self._distance_spare, self._flying_spare = distance, flying
+            if outcome == kernel._NON_FINITE_RESULT:
+                kernel._check_finite_result(state)
+            kernel._check_inputs(state, waypoints, self._wind, DECISION_PERIOD_S, sim.params, 0)
+            raise AssertionError(f"the compiled period returned {outcome}, and the Python checks found nothing")
+        sim.time_s += trace.steps_done.item() * self._dt_s
         self.decisions += 1
-        self._time_fraction[0] = min(1.0, sim.time_s / self._limit_s)
+        self.last_waypoints = waypoints[0]
+        self._obs = obs[0]
+        self.info = info
+        self._distance = distance
+        self.flying = flying
+        self._note_separation(trace)
+
+    def _after_period(self, actions: np.ndarray, waypoints: np.ndarray, trace: kernel.Trace) -> None:
+        """``step``'s bookkeeping after a recorded flight (``Simulation.advance``, for the
+        renderer's trails)."""
+        n = self.n_aircraft
+        self.decisions += 1
+        self.last_waypoints = waypoints[0]
         obs = np.empty((1, self.n_slots, self._obs_dim), dtype=np.float32)
         info = np.empty(n, dtype=INFO_RECORD)
         distance, self._distance_spare = self._distance_spare, self._distance
         flying, self._flying_spare = self._flying_spare, self.flying
         _world_after_period(
-            state, actions, self._flying_spare, self._distance_spare,
+            self.sim.state, actions, self._flying_spare, self._distance_spare,  # type: ignore[union-attr]
             trace.min_airspeed_kt, trace.max_airspeed_kt, trace.violation_steps, trace.steps_flown,
             trace.los_pairs, self._reward_weights, self._time_fraction, self._wind,
             self._n_neighbours, self._expose_wind, self._scales, obs, self._nearest_buffer, info, distance, flying,
@@ -341,6 +459,9 @@ class EncounterWorld:
         self.info = info
         self._distance = distance
         self.flying = flying
+        self._note_separation(trace)
+
+    def _note_separation(self, trace: kernel.Trace) -> None:
         min_sep = trace.min_separation_nm.item()
         self.min_separation_nm = np.inf if min_sep >= NO_PAIR_SEPARATION_NM else min_sep
 
