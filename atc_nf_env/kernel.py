@@ -479,6 +479,22 @@ def _record_step(state: np.ndarray, command: np.ndarray, record: np.ndarray, ste
             record[r, i, R_AIRSPEED_MAX] = command[i, C_STEP_MAX] if flew_step else state[i, S_AIRSPEED]
 
 
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+def _flown_airspeed(
+    u: float, first_flown: bool, lowest: float, highest: float, worst: float, u_min: float, u_max: float
+) -> tuple[float, float, float, float]:
+    """An aircraft's lowest and highest airspeed and its worst excursion outside [u_min,
+    u_max] (kt) after it flew at ``u`` (kt); the first step it flies in a call starts the
+    extremes (the airspeed held before it was never flown). Returns (lowest, highest,
+    worst, this step's excursion: > 0 outside the envelope)."""
+    if first_flown or u < lowest:
+        lowest = u
+    if first_flown or u > highest:
+        highest = u
+    excursion = max(u_min - u, u - u_max)
+    return lowest, highest, max(worst, excursion), excursion
+
+
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _ordinary_step(
     state: np.ndarray,
@@ -610,16 +626,11 @@ def _ordinary_step(
         command[i, C_FLEW] = 1.0
         command[i, C_STEP_MIN] = u
         command[i, C_STEP_MAX] = u
-        first_flown = steps_flown[i] == 0
-        if first_flown or u < min_airspeed[i]:
-            min_airspeed[i] = u
-        if first_flown or u > max_airspeed[i]:
-            max_airspeed[i] = u
-        excursion = max(u_min - u, u - u_max)
+        min_airspeed[i], max_airspeed[i], worst_excursion[i], excursion = _flown_airspeed(
+            u, steps_flown[i] == 0, min_airspeed[i], max_airspeed[i], worst_excursion[i], u_min, u_max
+        )
         if excursion > 0.0:
             step_violation = True
-            if excursion > worst_excursion[i]:
-                worst_excursion[i] = excursion
             violation_steps[i] += 1
             command[i, C_VIOLATED] = 1.0
         steps_flown[i] += 1
@@ -764,15 +775,11 @@ def _advance_world(
                 state[i, S_TIME] += h
                 step_nm = math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
                 state[i, S_PATH] += step_nm
-                if first_flown or u < min_airspeed[i]:
-                    min_airspeed[i] = u
-                if first_flown or u > max_airspeed[i]:
-                    max_airspeed[i] = u
-                excursion = max(u_min - u, u - u_max)
+                min_airspeed[i], max_airspeed[i], worst_excursion[i], excursion = _flown_airspeed(
+                    u, first_flown, min_airspeed[i], max_airspeed[i], worst_excursion[i], u_min, u_max
+                )
                 if excursion > 0.0:
                     step_violation = True
-                    if excursion > worst_excursion[i]:
-                        worst_excursion[i] = excursion
                     if command[i, C_VIOLATED] == 0.0:
                         violation_steps[i] += 1  # once per integration step
                         command[i, C_VIOLATED] = 1.0
@@ -1056,10 +1063,10 @@ def _lane_step(count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarra
             arg_x[b] = sgn_along * gx
             theta[b] = sgn_along * gy
         for b in range(count):
-            theta[b] = trig.poly_atan2(theta[b], arg_x[b])  # θ_nh where the gradient has a direction
+            theta[b] = trig.poly_atan2_inlined(theta[b], arg_x[b])  # θ_nh where the gradient has a direction
         cos_h, sin_h = temp[T_COS, i], temp[T_SIN, i]
         for b in range(count):
-            sin_h[b], cos_h[b] = trig.poly_sincos(heading[b])
+            sin_h[b], cos_h[b] = trig.poly_sincos_inlined(heading[b])
     for i in range(n):
         x, y, wp_x, wp_y = lanes[S_X, i], lanes[S_Y, i], lanes[S_WP_X, i], lanes[S_WP_Y, i]
         for b in range(count):
@@ -1152,16 +1159,11 @@ def _lane_outcomes(b0: int, count: int, temp: np.ndarray, world: np.ndarray, par
         b = b0 + k
         for i in range(n):
             u = temp[T_U, i, k]
-            first_flown = steps_flown[b, i] == 0
-            if first_flown or u < min_airspeed[b, i]:
-                min_airspeed[b, i] = u
-            if first_flown or u > max_airspeed[b, i]:
-                max_airspeed[b, i] = u
-            excursion = max(u_min - u, u - u_max)
+            min_airspeed[b, i], max_airspeed[b, i], worst_excursion[b, i], excursion = _flown_airspeed(
+                u, steps_flown[b, i] == 0, min_airspeed[b, i], max_airspeed[b, i], worst_excursion[b, i], u_min, u_max
+            )
             if excursion > 0.0:
                 world[W_STEP_VIOLATION, k] = 1.0
-                if excursion > worst_excursion[b, i]:
-                    worst_excursion[b, i] = excursion
                 violation_steps[b, i] += 1
             steps_flown[b, i] += 1
         world[W_MIN_SEP2, k] = world[W_NEW_MIN_SEP2, k]

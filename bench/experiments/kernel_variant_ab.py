@@ -11,11 +11,14 @@ The first calls of each copy (its compilation) are timed apart.
 Variants:
 
 - ``trig-inline``: the kernel's own atan2 and sincos (``atc_nf_env.trig``) inlined at
-  numba's level (``inline="always"``), so that LLVM can vectorize them in the lane step;
+  numba's level (``inline="always"``) everywhere, the general scalar path too;
 - ``commands-call``: the law's commands (``kernel._commands``) compiled as a function of
   their own, called, instead of inlined at numba's level into the world loop;
 - ``no-ordinary-step``: every step of the scalar path flown by its general code, none by
-  the one-world ordinary step (``kernel._ordinary_step``): the kernel before that step.
+  the one-world ordinary step (``kernel._ordinary_step``): the kernel before that step;
+- ``lane-trig-call``: the lane step's atan2 and sincos loops call the functions compiled
+  on their own (``trig.poly_atan2``, ``trig.poly_sincos``) instead of their inlined forms:
+  the kernel before it inlined them there (``trig-inline`` inlines them everywhere).
 
 Run: python bench/experiments/kernel_variant_ab.py --variant trig-inline [--rounds 11]
 """
@@ -33,12 +36,18 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 NJIT = '@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")'
+#: Each variant's edits: (file of the package, text, its replacement, times the text occurs).
 VARIANTS = {
-    "trig-inline": ("trig.py", f"{NJIT}\ndef poly_", NJIT[:-1] + ', inline="always")\ndef poly_', 2),
-    "commands-call": ("kernel.py", NJIT[:-1] + ', inline="always")\ndef _commands(',
-                      NJIT[:-1] + ", **NO_REFERENCE_COUNTS)\ndef _commands(", 1),
-    "no-ordinary-step": ("kernel.py", "ordinary_law = ordinary_steps and params[nf.P_K] == 2.0",
-                         "ordinary_law = False", 1),
+    "trig-inline": [("trig.py", f"{NJIT}\ndef poly_", NJIT[:-1] + ', inline="always")\ndef poly_', 2)],
+    "commands-call": [("kernel.py", NJIT[:-1] + ', inline="always")\ndef _commands(',
+                       NJIT[:-1] + ", **NO_REFERENCE_COUNTS)\ndef _commands(", 1)],
+    "no-ordinary-step": [("kernel.py", "ordinary_law = ordinary_steps and params[nf.P_K] == 2.0",
+                          "ordinary_law = False", 1)],
+    "lane-trig-call": [
+        ("kernel.py", "theta[b] = trig.poly_atan2_inlined(theta[b]", "theta[b] = trig.poly_atan2(theta[b]", 1),
+        ("kernel.py", "sin_h[b], cos_h[b] = trig.poly_sincos_inlined(heading[b])",
+         "sin_h[b], cos_h[b] = trig.poly_sincos(heading[b])", 1),
+    ],
 }
 
 
@@ -56,16 +65,16 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.rounds < 1:
         parser.error("--rounds must be >= 1")
-    file_name, old, new, count = VARIANTS[args.variant]
     with tempfile.TemporaryDirectory() as tmp:
         target = Path(tmp)
         copy_package(target, "kernel_as_committed")
         copy_package(target, "kernel_variant")
-        source = target / "kernel_variant" / file_name
-        text = source.read_text()
-        if text.count(old) != count:
-            raise SystemExit(f"the variant's edit no longer applies to {file_name}: update VARIANTS")
-        source.write_text(text.replace(old, new))
+        for file_name, old, new, count in VARIANTS[args.variant]:
+            source = target / "kernel_variant" / file_name
+            text = source.read_text()
+            if text.count(old) != count:
+                raise SystemExit(f"the variant's edit no longer applies to {file_name}: update VARIANTS")
+            source.write_text(text.replace(old, new))
         sys.path[:0] = [str(target), str(ROOT / "bench")]
         import bench_kernel
 
