@@ -91,10 +91,19 @@ class Case:
 
 
 @numba.njit(cache=True, fastmath=nf.FAST_MATH_FLAGS, error_model="numpy")
-def _own_trig(x: np.ndarray, y: np.ndarray, heading: np.ndarray, out: np.ndarray) -> None:
+def _inlined_trig(x: np.ndarray, y: np.ndarray, heading: np.ndarray, out: np.ndarray) -> None:
     """The law's atan2 of the gradient (θ_nh) and sincos of the heading per element, with
-    the kernel's own functions (``atc_nf_env.trig``) called as the lane step calls them in its
-    loops over worlds (numba functions, not inlined at numba's level)."""
+    the kernel's own functions (``atc_nf_env.trig``) inlined at numba's level, as the lane
+    step's loops over worlds inline them."""
+    for k in range(x.shape[0]):
+        s, c = trig.poly_sincos_inlined(heading[k])
+        out[k] = trig.poly_atan2_inlined(y[k], x[k]) + c + s
+
+
+@numba.njit(cache=True, fastmath=nf.FAST_MATH_FLAGS, error_model="numpy")
+def _called_trig(x: np.ndarray, y: np.ndarray, heading: np.ndarray, out: np.ndarray) -> None:
+    """The same with the kernel's own functions called (numba functions compiled on their
+    own, not inlined at numba's level), as the lane step called them before it inlined them."""
     for k in range(x.shape[0]):
         s, c = trig.poly_sincos(heading[k])
         out[k] = trig.poly_atan2(y[k], x[k]) + c + s
@@ -124,7 +133,7 @@ def transcendental_floor(rounds: int) -> dict[str, float]:
         offset = np.random.default_rng(1).normal(0.0, 0.2, heading.shape)
         x, y = 0.3 * np.cos(heading + offset), 0.3 * np.sin(heading + offset)
         out = np.empty_like(heading)
-        loops = {"own_ns": _own_trig, "libm_ns": _libm_trig}
+        loops = {"inlined_ns": _inlined_trig, "called_ns": _called_trig, "libm_ns": _libm_trig}
         for loop in loops.values():
             loop(x, y, heading, out)
         case.seconds(case.start.copy())
@@ -207,7 +216,8 @@ def main(argv: list[str] | None = None) -> int:
             print(rows[-1], flush=True)
     floor = transcendental_floor(args.rounds)
     print(f"one thread: {floor['step_ns']:.1f} ns per aircraft-step; atan2 + sincos alone: the kernel's own "
-          f"{floor['own_ns']:.1f} ns, libm's {floor['libm_ns']:.1f} ns", flush=True)
+          f"{floor['inlined_ns']:.1f} ns inlined, {floor['called_ns']:.1f} ns called, libm's {floor['libm_ns']:.1f} ns",
+          flush=True)
     text = "\n".join(
         [
             "## Kernel throughput",
@@ -240,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
             "inlined helpers pass took about a quarter of a one-world flight (sampled with `perf`; "
             "the frozen copy still pays them); its atan2 and sincos are polynomials of its own "
             "(`atc_nf_env.trig`, Cephes', within 2 ulps of libm: `tests/test_trig.py`), straight-line "
-            "arithmetic that gives the same bits in the lanes as on the scalar path; "
+            "arithmetic that gives the same bits in the lanes as on the scalar path, and which the lane "
+            "step inlines into its loops over worlds, where LLVM vectorizes them; "
             f"and batches of {current.LANE_MIN_WORLDS} worlds or more take the lane path, "
             "which flies a world's step, where no pair is within the sensing radius and no guard acts, for "
             f"chunks of {current.LANE_CHUNK} worlds at once in the lanes of SIMD registers (structure of "
@@ -260,14 +271,18 @@ def main(argv: list[str] | None = None) -> int:
             f"timed alternately): {floor['step_ns']:.0f} ns per aircraft-step, nearly all of them lane "
             "steps. The law's atan2 (of the gradient, for θ_nh) and sincos (of the heading) per "
             "aircraft-step, timed alone on the benchmark flight's own headings (and gradient directions "
-            "near them) in a loop over them like the lane step's, compiled as the kernel compiles them "
-            "(calls of numba functions, which LLVM may inline and vectorize): the kernel's own functions "
-            f"(`atc_nf_env.trig`) {floor['own_ns']:.1f} ns ({floor['own_ns'] / floor['step_ns']:.0%} of the "
-            f"step), libm's, which the kernel called before it had its own, {floor['libm_ns']:.1f} ns "
-            "(libm has no vector form that gives its scalar bits, so those were scalar calls even in the "
-            "lanes). Inlined at numba's level, in a loop LLVM vectorizes, the kernel's own take a few ns "
-            "(`bench/experiments/trig_probe.py`); the kernel does not inline them so, for its compile time "
-            "(README.md, status table, simulator core, gives the side-by-side run). One world (B = 1, the safety filter's prediction) is flown by the scalar path, one "
+            "near them) in a loop over them like the lane step's, compiled as the kernel compiles them: "
+            "the kernel's own functions (`atc_nf_env.trig`) inlined as the lane "
+            f"step inlines them {floor['inlined_ns']:.1f} ns ({floor['inlined_ns'] / floor['step_ns']:.0%} of the "
+            f"step); the same called as numba functions compiled on their own, as the lane step called them "
+            f"before this build, {floor['called_ns']:.1f} ns; libm's, which the kernel called before it had its "
+            f"own, {floor['libm_ns']:.1f} ns (libm has no vector form that gives its scalar bits, so those were "
+            "scalar calls even in the lanes). What inlining them into the lane step's two loops gains, and "
+            "what it costs in first compilation, `python bench/experiments/kernel_variant_ab.py --variant "
+            "lane-trig-call` measures side by side against the kernel that calls them; inlined everywhere, the "
+            "general scalar path too, they lengthened the first compilation by about a third (`--variant "
+            "trig-inline`; README.md, status table, simulator core, gives both runs). One world (B = 1, the "
+            "safety filter's prediction) is flown by the scalar path, one "
             "aircraft after another, whose divisions and square roots sit in one dependency chain per "
             "aircraft: there the kernel's own functions gain little over libm's, in a chain of dependent "
             "calls (`bench/experiments/trig_probe.py`); its ordinary steps inline them.",
