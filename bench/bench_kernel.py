@@ -205,8 +205,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"first calls (compile or cache load): frozen {compile_s['frozen']:.2f} s, "
           f"current {compile_s['current']:.2f} s", flush=True)
     rows = [
-        "| B | N | frozen kernel (aircraft-steps/s) | current kernel (aircraft-steps/s) | current / frozen "
-        "[quartiles over rounds] |",
+        (
+            "| B | N | frozen kernel (aircraft-steps/s) | current kernel (aircraft-steps/s) | current / frozen "
+            "[quartiles over rounds] |"
+        ),
         "|---:|---:|---:|---:|---:|",
     ]
     ratios = {}
