@@ -2,9 +2,12 @@
 
 ``bench/bench_kernel.py`` times one 5-min period of converging-N per ``advance`` call. At
 B = 1 the call's Python (its quick checks, the ``Trace`` and its ten arrays, numba's
-dispatch of 18 arguments) is a share of that time that no kernel work can remove. This
-probe times ``advance`` and its compiled ``_advance_checked`` alone on preallocated arrays,
-alternately: medians over 31 rounds of the medians of 200 calls each, warm.
+dispatch of 21 arguments) is a share of that time that no kernel work can remove. This
+probe times, alternately and warm (medians over 31 rounds of the medians of 200 calls
+each): ``advance``; its compiled ``_advance_checked`` alone on preallocated arrays; the
+same compiled call flying no step (numba's dispatch of the arguments and the checks of
+their values); and the two Python layers alone, ``_quick_steps`` (types, shapes, layouts
+and the step count) and ``KernelScratch.trace`` (handing back a dropped trace).
 
 Run: python bench/experiments/advance_overhead.py
 """
@@ -12,6 +15,7 @@ Run: python bench/experiments/advance_overhead.py
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -47,21 +51,41 @@ def measure(n: int) -> None:
         kernel.advance(state, waypoints, wind, 300.0, params, scratch=scratch)
         return time.perf_counter() - t0
 
-    def compiled_alone() -> float:
-        state = start.copy()
+    def compiled(n_steps: int) -> Callable[[], float]:
+        def call() -> float:
+            state = start.copy()
+            t0 = time.perf_counter()
+            kernel._advance_checked(state, waypoints, wind, n_steps, params, grad, command, *buffers, 1,
+                                    scratch.lanes, scratch.lane_temp, scratch.lane_world)
+            return time.perf_counter() - t0
+        return call
+
+    def quick_steps() -> float:
         t0 = time.perf_counter()
-        kernel._advance_checked(state, waypoints, wind, steps, params, grad, command, *buffers, 1)
+        kernel._quick_steps(start, waypoints, wind, 300.0, params, 0)
         return time.perf_counter() - t0
 
-    for _ in range(200):
-        through_advance(), compiled_alone()
-    whole, alone = [], []
-    for _ in range(31):
-        whole.append(np.median([through_advance() for _ in range(200)]))
-        alone.append(np.median([compiled_alone() for _ in range(200)]))
-    a, c = np.median(whole) * 1e6, np.median(alone) * 1e6
+    def trace_reuse() -> float:
+        t0 = time.perf_counter()
+        scratch.trace(1, n, 0)
+        return time.perf_counter() - t0
+
+    probes = {"advance": through_advance, "compiled": compiled(steps), "no step": compiled(0),
+              "quick checks": quick_steps, "trace": trace_reuse}
+    for probe in probes.values():
+        for _ in range(200):
+            probe()
+    medians: dict[str, list[float]] = {name: [] for name in probes}
+    for r in range(31):
+        order = list(probes) if r % 2 == 0 else list(reversed(probes))
+        for name in order:
+            medians[name].append(float(np.median([probes[name]() for _ in range(200)])))
+    us = {name: float(np.median(values)) * 1e6 for name, values in medians.items()}
+    a, c = us["advance"], us["compiled"]
     print(f"converging-{n}, B = 1: advance {a:.1f} µs per period, its compiled call alone {c:.1f} µs; "
-          f"the Python around it {a - c:.1f} µs ({(a - c) / a:.0%})")
+          f"the Python around it {a - c:.1f} µs ({(a - c) / a:.0%}); the compiled call flying no step "
+          f"(dispatch and value checks) {us['no step']:.1f} µs; quick checks {us['quick checks']:.1f} µs; "
+          f"trace handed back {us['trace']:.1f} µs")
 
 
 def main() -> None:
