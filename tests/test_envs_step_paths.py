@@ -10,9 +10,12 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
 import atc_nf_env
+from atc_nf_env.config import SimConfig
 from atc_nf_env.envs.centralized import EncounterEnv
 from atc_nf_env.envs.parallel import ATCParallelEnv
 
@@ -312,6 +315,45 @@ def test_the_compiled_period_flies_as_the_recorded_path_bit_for_bit() -> None:
             assert quick.world.sim.time_s == recorded.world.sim.time_s
             steps += 1
         assert not recorded.agents and steps > 3
+    recorded.close()
+
+
+@settings(max_examples=12, deadline=None)
+@given(
+    kind=st.sampled_from(["converging", "random"]),
+    n_aircraft=st.integers(2, 7),
+    seed=st.integers(0, 10_000),
+    wind_sigma=st.sampled_from([0.0, 5.17, 25.0]),
+    n_neighbours=st.integers(1, 5),
+    spare_slots=st.integers(0, 2),
+    episode_minutes=st.sampled_from([20.0, 240.0]),
+    dt_s=st.sampled_from([5.0, 2.5]),
+    expose_wind=st.booleans(),
+    action_scale=st.sampled_from([0.0, 1.0, 3.0]),
+)
+def test_the_compiled_period_flies_as_the_recorded_path_on_drawn_settings(
+    kind: str, n_aircraft: int, seed: int, wind_sigma: float, n_neighbours: int, spare_slots: int,
+    episode_minutes: float, dt_s: float, expose_wind: bool, action_scale: float,
+) -> None:
+    """Over drawn encounters, wind, observation settings, episode lengths (truncation),
+    integration steps and actions up to 3× outside the box (clipped): the compiled period
+    and the recorded path hand out the same bits at the reset and every step, to the end
+    of the episode."""
+    kwargs = dict(scenario=f"{kind}-{n_aircraft}", wind_sigma=wind_sigma, n_neighbours=n_neighbours,
+                  max_aircraft=n_aircraft + spare_slots, max_episode_minutes=episode_minutes,
+                  expose_wind=expose_wind, config=SimConfig(dt_s=dt_s))
+    quick = atc_nf_env.parallel_env(**kwargs)
+    recorded = atc_nf_env.parallel_env(render_mode="rgb_array", **kwargs)
+    assert quick.world.record_every == 0 and recorded.world.record_every > 0
+    rng = np.random.default_rng(seed)
+    assert_same_value_deep(quick.reset(seed=seed), recorded.reset(seed=seed), "reset")
+    steps = 0
+    while quick.agents:
+        actions = {agent: action_scale * rng.uniform(-1.0, 1.0, 2) for agent in quick.agents}
+        assert_same_value_deep(quick.step(actions), recorded.step(actions), f"step {steps}")
+        assert quick.state().tobytes() == recorded.state().tobytes(), f"step {steps}"
+        steps += 1
+    assert not recorded.agents and steps >= 1
     recorded.close()
 
 
