@@ -339,9 +339,11 @@ def test_the_compiled_period_flies_as_the_recorded_path_on_drawn_settings(
     integration steps and actions up to 3× outside the box (clipped): the compiled period
     and the recorded path hand out the same bits at the reset and every step, to the end
     of the episode."""
-    kwargs = dict(scenario=f"{kind}-{n_aircraft}", wind_sigma=wind_sigma, n_neighbours=n_neighbours,
-                  max_aircraft=n_aircraft + spare_slots, max_episode_minutes=episode_minutes,
-                  expose_wind=expose_wind, config=SimConfig(dt_s=dt_s))
+    kwargs: dict[str, Any] = {
+        "scenario": f"{kind}-{n_aircraft}", "wind_sigma": wind_sigma, "n_neighbours": n_neighbours,
+        "max_aircraft": n_aircraft + spare_slots, "max_episode_minutes": episode_minutes,
+        "expose_wind": expose_wind, "config": SimConfig(dt_s=dt_s),
+    }
     quick = atc_nf_env.parallel_env(**kwargs)
     recorded = atc_nf_env.parallel_env(render_mode="rgb_array", **kwargs)
     assert quick.world.record_every == 0 and recorded.world.record_every > 0
