@@ -296,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
             "what it costs in first compilation, `python bench/experiments/kernel_variant_ab.py --variant "
             "lane-trig-call` measures side by side against the kernel that calls them; inlined everywhere, the "
             "general scalar path too, they lengthened the first compilation by about a third (`--variant "
-            "trig-inline`; README.md, "Performance and integration notes", gives both runs). One world (B = 1, the "
+            "trig-inline`; README.md, \"Performance and integration notes\", gives both runs). One world (B = 1, the "
             "safety filter's prediction) is flown by the scalar path, one "
             "aircraft after another, whose divisions and square roots sit in one dependency chain per "
             "aircraft: there the kernel's own functions gain little over libm's, in a chain of dependent "
