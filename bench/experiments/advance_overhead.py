@@ -5,8 +5,8 @@ B = 1 the call's Python (its quick checks, the ``Trace`` and its ten arrays, num
 dispatch of 21 arguments) is a share of that time that no kernel work can remove. This
 probe times, alternately and warm (medians over 31 rounds of the medians of 200 calls
 each): ``advance``; its compiled ``_advance_checked`` alone on preallocated arrays; the
-same compiled call flying no step (numba's dispatch of the arguments and the checks of
-their values); and the two Python layers alone, ``_quick_steps`` (types, shapes, layouts
+same compiled call flying no step (numba's dispatch of the arguments, the checks of their
+values and the world's setup before its first step); and the two Python layers alone, ``_quick_steps`` (types, shapes, layouts
 and the step count) and ``KernelScratch.trace`` (handing back a dropped trace).
 
 Run: python bench/experiments/advance_overhead.py
@@ -84,7 +84,7 @@ def measure(n: int) -> None:
     a, c = us["advance"], us["compiled"]
     print(f"converging-{n}, B = 1: advance {a:.1f} µs per period, its compiled call alone {c:.1f} µs; "
           f"the Python around it {a - c:.1f} µs ({(a - c) / a:.0%}); the compiled call flying no step "
-          f"(dispatch and value checks) {us['no step']:.1f} µs; quick checks {us['quick checks']:.1f} µs; "
+          f"(dispatch, value checks, the world's setup) {us['no step']:.1f} µs; quick checks {us['quick checks']:.1f} µs; "
           f"trace handed back {us['trace']:.1f} µs")
 
 
