@@ -297,24 +297,39 @@ def test_a_copied_aec_env_flies_on_alone() -> None:
     assert_same_value_deep(replay.last(), last[1], "the deep copy")
 
 
+def _compiled_and_recorded(kwargs: dict[str, Any]) -> tuple[ATCParallelEnv, ATCParallelEnv]:
+    """A parallel env without a render mode (its world flies the compiled period) and one
+    with (the recorded path), on the same settings."""
+    quick = atc_nf_env.parallel_env(**kwargs)
+    recorded = atc_nf_env.parallel_env(render_mode="rgb_array", **kwargs)
+    assert quick.world.record_every == 0 and recorded.world.record_every > 0
+    return quick, recorded
+
+
+def _fly_both(quick: ATCParallelEnv, recorded: ATCParallelEnv, seed: int, action_bound: float) -> int:
+    """One episode of ``seed`` flown by both envs with the same uniform actions in
+    ±``action_bound``: asserts the same reset, the same step results, states and clocks at
+    every step, and both episodes over together. Returns the steps flown."""
+    rng = np.random.default_rng(seed)
+    assert_same_value_deep(quick.reset(seed=seed), recorded.reset(seed=seed), f"seed {seed}: reset")
+    steps = 0
+    while quick.agents:
+        actions = {agent: rng.uniform(-action_bound, action_bound, 2) for agent in quick.agents}
+        assert_same_value_deep(quick.step(actions), recorded.step(actions), f"seed {seed}, step {steps}")
+        assert quick.state().tobytes() == recorded.state().tobytes(), f"seed {seed}, step {steps}"
+        assert quick.world.sim.time_s == recorded.world.sim.time_s
+        steps += 1
+    assert not recorded.agents
+    return steps
+
+
 def test_the_compiled_period_flies_as_the_recorded_path_bit_for_bit() -> None:
     """Without a render mode a world flies its period in one compiled call
     (``centralized._fly_world_period``); with one, through ``Simulation.advance`` (the
     renderer's trails) and the same bookkeeping in steps: both hand out the same bits."""
-    quick = atc_nf_env.parallel_env(scenario="random-5", expose_wind=True)
-    recorded = atc_nf_env.parallel_env(scenario="random-5", expose_wind=True, render_mode="rgb_array")
-    assert quick.world.record_every == 0 and recorded.world.record_every > 0
-    for seed in (4, 8):
-        rng = np.random.default_rng(seed)
-        assert_same_value_deep(quick.reset(seed=seed), recorded.reset(seed=seed), f"seed {seed}: reset")
-        steps = 0
-        while quick.agents:
-            actions = {agent: rng.uniform(-1.2, 1.2, 2) for agent in quick.agents}
-            assert_same_value_deep(quick.step(actions), recorded.step(actions), f"seed {seed}, step {steps}")
-            assert quick.state().tobytes() == recorded.state().tobytes()
-            assert quick.world.sim.time_s == recorded.world.sim.time_s
-            steps += 1
-        assert not recorded.agents and steps > 3
+    quick, recorded = _compiled_and_recorded({"scenario": "random-5", "expose_wind": True})
+    for seed in (4, 8):  # the same two envs: the second episode follows a reset
+        assert _fly_both(quick, recorded, seed, 1.2) > 3, f"seed {seed}"
     recorded.close()
 
 
@@ -344,18 +359,8 @@ def test_the_compiled_period_flies_as_the_recorded_path_on_drawn_settings(
         "max_aircraft": n_aircraft + spare_slots, "max_episode_minutes": episode_minutes,
         "expose_wind": expose_wind, "config": SimConfig(dt_s=dt_s),
     }
-    quick = atc_nf_env.parallel_env(**kwargs)
-    recorded = atc_nf_env.parallel_env(render_mode="rgb_array", **kwargs)
-    assert quick.world.record_every == 0 and recorded.world.record_every > 0
-    rng = np.random.default_rng(seed)
-    assert_same_value_deep(quick.reset(seed=seed), recorded.reset(seed=seed), "reset")
-    steps = 0
-    while quick.agents:
-        actions = {agent: action_scale * rng.uniform(-1.0, 1.0, 2) for agent in quick.agents}
-        assert_same_value_deep(quick.step(actions), recorded.step(actions), f"step {steps}")
-        assert quick.state().tobytes() == recorded.state().tobytes(), f"step {steps}"
-        steps += 1
-    assert not recorded.agents and steps >= 1
+    quick, recorded = _compiled_and_recorded(kwargs)
+    assert _fly_both(quick, recorded, seed, action_scale) >= 1
     recorded.close()
 
 
