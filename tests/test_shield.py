@@ -623,3 +623,26 @@ def test_the_compiled_screen_keeps_the_wind_estimate_and_stall_rule_of_the_pytho
             reference.predicted_flying = predictor.alive.tolist()
             reference.predicted_time = time_s + 300.0
         time_s += gap
+
+
+def test_reset_loads_every_compiled_entry_of_a_change():
+    """The first decision the filter changes runs no numba cache load (about 25 ms, once
+    inside a timed run): ``reset`` has loaded the alternatives and their prediction. In a
+    fresh interpreter, where nothing was loaded before."""
+    import subprocess
+    import sys
+
+    code = (
+        "from atc_nf_env import shield_prediction as sp\n"
+        "from atc_nf_env.config import SimConfig\n"
+        "from atc_nf_env.policy import make_policy\n"
+        "from atc_nf_env.scenarios import make_scenario\n"
+        "from atc_nf_env.shield import SafetyFilter\n"
+        "assert not sp._first_safe.signatures\n"
+        "SafetyFilter(make_policy('nf'), fallback='least-bad').reset(make_scenario('converging-4'), SimConfig(), 0)\n"
+        "print(len(sp._first_safe.signatures), len(sp._structured_alternatives.signatures))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    first_safe, alternatives = (int(x) for x in out.stdout.split())
+    assert first_safe >= 1 and alternatives >= 1
