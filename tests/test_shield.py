@@ -642,7 +642,7 @@ def test_reset_loads_every_compiled_entry_of_a_change():
         "SafetyFilter(make_policy('nf'), fallback='least-bad').reset(make_scenario('converging-4'), SimConfig(), 0)\n"
         "print(len(sp._first_safe.signatures), len(sp._structured_alternatives.signatures))\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    out = subprocess.run([sys.executable, "-c", code], check=False, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     first_safe, alternatives = (int(x) for x in out.stdout.split())
     assert first_safe >= 1 and alternatives >= 1
