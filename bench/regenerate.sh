@@ -25,13 +25,15 @@ if ((FROM == 1)); then
     find atc_nf_env baselines agents -name '*.nbi' -delete -o -name '*.nbc' -delete
     # A study refuses to resume runs flown by another build: the last regeneration's run
     # folders are set aside (out/previous/, replaced each time), not resumed.
-    mkdir -p out/previous
-    for study in reproduction agents agents_scratch agents_deepsets deepsets_shield deepsets_shield1000 shield shield1000; do
-        if [[ -d out/$study ]]; then
-            rm -rf "out/previous/$study"
-            mv "out/$study" "out/previous/$study"
-        fi
-    done
+    if [[ $WHAT == all || $WHAT == studies ]]; then
+        mkdir -p out/previous
+        for study in reproduction agents agents_scratch agents_deepsets deepsets_shield deepsets_shield1000 shield shield1000; do
+            if [[ -d out/$study ]]; then
+                rm -rf "out/previous/$study"
+                mv "out/$study" "out/previous/$study"
+            fi
+        done
+    fi
 fi
 
 run() {  # run NAME COMMAND...: the command, its output in $LOGS, its time on the terminal
