@@ -45,7 +45,6 @@ from atc_nf_env.kernel import (
     FLYING,
     N_COMMAND,
     N_LANE_TEMP,
-    N_LANE_WORLD,
     N_RECORD,
     N_STATE,
     P_DELTA,
@@ -101,7 +100,7 @@ from atc_nf_env.nf import FAST_MATH_FLAGS, NO_REFERENCE_COUNTS
 
 @njit(fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _ordinary_step_lanes(state, command, wind_x, wind_y, params, nf_consts, min_sep2, min_airspeed, max_airspeed,
-                         violation_steps, worst_excursion, steps_flown, lanes, temp, world):
+                         violation_steps, worst_excursion, steps_flown, lanes, temp):
     n = state.shape[0]
     inv_len = nf_consts[0]
     r_sense2 = nf_consts[7]
@@ -253,13 +252,13 @@ def _ordinary_step_lanes(state, command, wind_x, wind_y, params, nf_consts, min_
 # _advance_world with the lane ordinary step
 _src = inspect.getsource(kernel._advance_world.py_func)
 _src = _src[_src.index("def _advance_world"):]
-_src = _src.replace("def _advance_world(", "def _advance_world_lanes(lanes, temp, world_rows, ", 1)
+_src = _src.replace("def _advance_world(", "def _advance_world_lanes(lanes, temp, ", 1)
 _src = _src.replace("""_ordinary_step(
                 state, command, wind_x, wind_y, params, nf_consts, min_sep2, min_airspeed, max_airspeed,
                 violation_steps, worst_excursion, steps_flown,
             )""", """_ordinary_step_lanes(
                 state, command, wind_x, wind_y, params, nf_consts, min_sep2, min_airspeed, max_airspeed,
-                violation_steps, worst_excursion, steps_flown, lanes, temp, world_rows,
+                violation_steps, worst_excursion, steps_flown, lanes, temp,
             )""")
 assert "_ordinary_step_lanes(" in _src
 ns = dict(vars(kernel)); ns["_ordinary_step_lanes"] = _ordinary_step_lanes
@@ -267,7 +266,7 @@ exec(_src, ns)  # noqa: S102 - the kernel's own loop, with the lane step in plac
 _advance_world_lanes = njit(fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)(ns["_advance_world_lanes"])
 
 @njit(fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
-def fly_many(states, wps, winds, n_steps, params, use_lanes, lanes, temp, world_rows, out, grad, command, per, cnt, los, rec, outcome):
+def fly_many(states, wps, winds, n_steps, params, use_lanes, lanes, temp, out, grad, command, per, cnt, los, rec, outcome):
     for c in range(states.shape[0]):
         state = out[c]
         n = state.shape[0]
@@ -275,7 +274,7 @@ def fly_many(states, wps, winds, n_steps, params, use_lanes, lanes, temp, world_
             for f in range(N_STATE):
                 state[i, f] = states[c, i, f]
         if use_lanes:
-            r = _advance_world_lanes(lanes, temp, world_rows, state, wps[c], winds[c, 0], winds[c, 1], n_steps, params, grad, command,
+            r = _advance_world_lanes(lanes, temp, state, wps[c], winds[c, 0], winds[c, 1], n_steps, params, grad, command,
                                      per[c, 0], per[c, 1], cnt[c, 0], per[c, 2], cnt[c, 1], los[c], rec, 1, True)
         else:
             r = kernel._advance_world(state, wps[c], winds[c, 0], winds[c, 1], n_steps, params, grad, command,
@@ -307,30 +306,28 @@ def main():
         wps[nfly] = states[nfly][:, S_WP_X:S_WP_Y + 1]
         C, n = states.shape[:2]
         count = max(pad * math.ceil(n / pad), n) if pad else n
-        lanes = np.zeros((N_STATE, count)); temp = np.zeros((N_LANE_TEMP, count)); world_rows = np.zeros((N_LANE_WORLD, count))
+        lanes = np.zeros((N_STATE, count)); temp = np.zeros((N_LANE_TEMP, count))
         for b in range(count):
             lanes[:, b] = states[0, 0]; lanes[S_STATUS, b] = 0.0
-        res = {}
-        ratios = []
-        outs = {}
+        results = {}  # the last round's flights: states, outcome arrays, return values
+        per_flight = {False: [], True: []}  # µs per flight, by round (the first dropped)
         for rnd in range(15):
-            t = {}
             for use in ((False, True) if rnd % 2 else (True, False)):
                 out = np.zeros_like(states); grad = np.zeros((n, n, 2)); command = np.zeros((n, N_COMMAND))
                 per = np.zeros((C, 3, n)); cnt = np.zeros((C, 2, n), dtype=np.int64); los = np.zeros((C, n, n), dtype=np.uint8)
                 rec = np.zeros((0, n, N_RECORD)); outcome = np.zeros((C, 3))
                 t0 = time.perf_counter()
-                fly_many(states, wps, winds, 120, params, use, lanes, temp, world_rows, out, grad, command, per, cnt, los, rec, outcome)
-                t[use] = time.perf_counter() - t0
-                res[use] = (0, out.copy(), per.copy(), cnt.copy(), outcome.copy())
-            if rnd > 0:
-                ratios.append(t[False] / t[True]); outs.setdefault(False, []).append(t[False] / C * 1e6); outs.setdefault(True, []).append(t[True] / C * 1e6)
-        res[False] = (np.median(outs[False]),) + res[False][1:]
-        res[True] = (np.median(outs[True]),) + res[True][1:]
+                fly_many(states, wps, winds, 120, params, use, lanes, temp, out, grad, command, per, cnt, los, rec, outcome)
+                elapsed = time.perf_counter() - t0
+                results[use] = (out, per, cnt, outcome)
+                if rnd > 0:
+                    per_flight[use].append(elapsed / C * 1e6)
+        ratios = np.array(per_flight[False]) / np.array(per_flight[True])
         print("ratio quartiles", np.percentile(ratios, [25, 50, 75]).round(3))
-        same = all(np.array_equal(a.view(np.uint8), b.view(np.uint8)) for a, b in zip(res[False][1:], res[True][1:]))
-        print(f"{scen} pad={pad} count={count}: cases {C}, per 120-step flight: scalar {res[False][0]:.1f} µs, lanes {res[True][0]:.1f} µs, ratio {res[False][0]/res[True][0]:.2f}; same bits: {same}")
-
+        same = all(np.array_equal(a.view(np.uint8), b.view(np.uint8)) for a, b in zip(results[False], results[True]))
+        scalar, lanes_us = np.median(per_flight[False]), np.median(per_flight[True])
+        print(f"{scen} pad={pad} count={count}: cases {C}, per 120-step flight: scalar {scalar:.1f} µs, lanes "
+              f"{lanes_us:.1f} µs, ratio {scalar / lanes_us:.2f}; same bits: {same}")
 
 if __name__ == "__main__":
     main()
