@@ -24,6 +24,7 @@ from numba import njit
 from atc_nf_env import kernel
 from atc_nf_env.kernel import (
     FLYING,
+    N_AIRCRAFT_LANE,
     N_COMMAND,
     N_RECORD,
     N_STATE,
@@ -173,6 +174,7 @@ def _first_safe(
     home: np.ndarray,
     grad: np.ndarray,
     command: np.ndarray,
+    aircraft_lanes: np.ndarray,
     min_airspeed: np.ndarray,
     max_airspeed: np.ndarray,
     worst_excursion: np.ndarray,
@@ -211,8 +213,8 @@ def _first_safe(
                 _homing_waypoints(world, candidates[m], home_distance_nm, max_turn_rad, limit_nm, home)
                 waypoints = home
             _, done, violated = kernel._advance_world(
-                world, waypoints, wind[0], wind[1], period_steps, params, grad, command, min_airspeed,
-                max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, record, 1, True,
+                world, waypoints, wind[0], wind[1], period_steps, params, grad, command, aircraft_lanes,
+                min_airspeed, max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, record, 1, True,
             )
             if not kernel._all_finite(world):
                 return _NON_FINITE
@@ -304,6 +306,7 @@ def _screen(
     home: np.ndarray,
     grad: np.ndarray,
     command: np.ndarray,
+    aircraft_lanes: np.ndarray,
     per_aircraft: np.ndarray,
     per_aircraft_counts: np.ndarray,
     los_pairs: np.ndarray,
@@ -378,8 +381,8 @@ def _screen(
         return SCREEN_HOMED
     index = _first_safe(
         state, planned, wind, params, period_steps, lookahead_periods, home_distance_nm, max_turn_rad, limit_nm,
-        world, home, grad, command, per_aircraft[0], per_aircraft[1], per_aircraft[2], per_aircraft_counts[0],
-        per_aircraft_counts[1], los_pairs, record, survived, blamed, positions, alive,
+        world, home, grad, command, aircraft_lanes, per_aircraft[0], per_aircraft[1], per_aircraft[2],
+        per_aircraft_counts[0], per_aircraft_counts[1], los_pairs, record, survived, blamed, positions, alive,
     )
     if index == _NON_FINITE:
         return _NON_FINITE
@@ -465,6 +468,7 @@ class PlanPredictor:
             self._home = np.zeros((n, 2))
             self._grad = np.zeros((n, n, 2))
             self._command = np.zeros((n, N_COMMAND))
+            self._aircraft_lanes = np.zeros((N_AIRCRAFT_LANE, n))
             self._per_aircraft = np.zeros((3, n))  # lowest and highest airspeed, worst excursion
             self._counts = np.zeros((2, n), dtype=np.int64)  # violation steps, steps flown
             self._los_pairs = np.zeros((n, n), dtype=np.uint8)
@@ -507,8 +511,9 @@ class PlanPredictor:
         violation_steps, steps_flown = self._counts
         index = _first_safe(
             state, candidates, wind_kt, self.params, self.period_steps, self.lookahead_periods, *self._homing,
-            self._world, self._home, grad, command, min_airspeed, max_airspeed, worst, violation_steps,
-            steps_flown, self._los_pairs, self._record, self.survived, self.blamed, self.positions, self.alive,
+            self._world, self._home, grad, command, self._aircraft_lanes, min_airspeed, max_airspeed, worst,
+            violation_steps, steps_flown, self._los_pairs, self._record, self.survived, self.blamed, self.positions,
+            self.alive,
         )
         if index == _NON_FINITE:
             raise FloatingPointError(_NON_FINITE_MESSAGE)
@@ -547,8 +552,8 @@ class PlanPredictor:
             0.0 if stall_progress_nm is None else stall_progress_nm, memory.wind_kt, memory.timing,
             memory.predicted, memory.predicted_alive, memory.distances, memory.history_time, memory.homebound,
             memory.counts, memory.planned, self.params, self.period_steps, self.lookahead_periods, *self._homing,
-            self._world, self._home, grad, command, self._per_aircraft, self._counts, self._los_pairs,
-            self._record, self.survived, self.blamed, self.positions, self.alive,
+            self._world, self._home, grad, command, self._aircraft_lanes, self._per_aircraft, self._counts,
+            self._los_pairs, self._record, self.survived, self.blamed, self.positions, self.alive,
         )
         if verdict == _NON_FINITE:
             raise FloatingPointError(_NON_FINITE_MESSAGE)

@@ -272,11 +272,13 @@ def main(argv: list[str] | None = None) -> int:
             f"chunks of {current.LANE_CHUNK} worlds at once in the lanes of SIMD registers (structure of "
             "arrays, branches as selects), and the world's other steps by the scalar path, the same "
             "arithmetic (`tests/test_kernel_lanes.py`; `bench/kernel_trajectory_hash.py` compares builds); "
-            "on the scalar path (one world, smaller batches), the same ordinary steps are flown by a "
-            "one-world step of the lane step's arithmetic (`kernel._ordinary_step`, with the trig "
-            "functions inlined; `tests/test_kernel_ordinary_step.py` holds it to the general path's bits, "
-            "and `python bench/experiments/kernel_variant_ab.py --variant no-ordinary-step` times the "
-            "kernel without it). "
+            "on the scalar path (one world, smaller batches), the same ordinary steps are flown by the "
+            "lane step's arithmetic over the world's aircraft, which stay in lanes from one ordinary step to "
+            "the next (`kernel._ordinary_run`, with the trig functions inlined; "
+            "`tests/test_kernel_ordinary_step.py` holds it to the general path's bits, "
+            "`python bench/experiments/kernel_variant_ab.py --variant no-ordinary-step` times the "
+            "kernel without it, and `python bench/experiments/ordinary_run_ab.py` against the one-step form "
+            "it replaced). "
             "Every world of this benchmark's period is ordinary. The kernel "
             "keeps only the fast-math flags that cannot change a finite result, so that a world "
             "flies bit for bit the same alone or in a batch of any size. Absolute rates move with "
@@ -297,10 +299,10 @@ def main(argv: list[str] | None = None) -> int:
             "lane-trig-call` measures side by side against the kernel that calls them; inlined everywhere, the "
             "general scalar path too, they lengthened the first compilation by about a third (`--variant "
             "trig-inline`; README.md, \"Performance and integration notes\", gives both runs). One world (B = 1, the "
-            "safety filter's prediction) is flown by the scalar path, one "
-            "aircraft after another, whose divisions and square roots sit in one dependency chain per "
+            "safety filter's prediction) is flown by the scalar path, whose general steps take one "
+            "aircraft after another, their divisions and square roots in one dependency chain per "
             "aircraft: there the kernel's own functions gain little over libm's, in a chain of dependent "
-            "calls (`bench/experiments/trig_probe.py`); its ordinary steps inline them.",
+            "calls (`bench/experiments/trig_probe.py`); its runs of ordinary steps inline them.",
         ]
     )
     return publish("kernel", text, args.write)

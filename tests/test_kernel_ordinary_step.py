@@ -1,4 +1,4 @@
-"""The kernel's one-world ordinary step (``kernel._ordinary_step``): a world's flight with
+"""The kernel's one-world ordinary steps (``kernel._ordinary_run``): a world's flight with
 its ordinary steps flown by it is bit for bit the flight of the general scalar path, with
 the same outcome, whichever steps are ordinary (neighbours in range, arrivals, padding
 slots, waypoint switches, violations and records in between)."""
@@ -32,7 +32,8 @@ def _fly(state: np.ndarray, waypoints: np.ndarray, wind: np.ndarray, n_steps: in
     command = np.zeros((n, kernel.N_COMMAND))
     minimum, maximum, violations, worst, flown, los, record = outcomes
     result = kernel._advance_world(
-        state, waypoints, float(wind[0]), float(wind[1]), n_steps, params, np.zeros((n, n, 2)), command, minimum,
+        state, waypoints, float(wind[0]), float(wind[1]), n_steps, params, np.zeros((n, n, 2)), command,
+        np.zeros((kernel.N_AIRCRAFT_LANE, n)), minimum,
         maximum, violations, worst, flown, los, record, max(record_every, 1), ordinary_steps,
     )
     return result, outcomes, command

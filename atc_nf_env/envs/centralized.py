@@ -160,6 +160,7 @@ def _fly_world_period(
     params: np.ndarray,
     grad: np.ndarray,
     command: np.ndarray,
+    aircraft_lanes: np.ndarray,
     min_airspeed: np.ndarray,
     max_airspeed: np.ndarray,
     violation_steps: np.ndarray,
@@ -208,8 +209,8 @@ def _fly_world_period(
         if not params[index] > 0.0:
             return kernel._BAD_INPUT
     kernel._advance_one(
-        0, state, waypoints, wind, n_steps, params, grad, command, min_airspeed, max_airspeed, violation_steps,
-        worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record, 1,
+        0, state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
+        violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record, 1,
     )
     outcome = kernel._DONE if kernel._all_finite(state) else kernel._NON_FINITE_RESULT
     if outcome == kernel._DONE:
@@ -262,7 +263,7 @@ class EncounterWorld:
         self._period_steps = kernel.steps_for(DECISION_PERIOD_S, self._dt_s)
         # The compiled period's buffers, kept for the world's life: the kernel's scratch and
         # a trace of its own (read by ``_world_after_period`` within the same call).
-        self._grad, self._command = self._scratch.get(1, self.source.n_aircraft)
+        self._grad, self._command, self._aircraft_lanes = self._scratch.get(1, self.source.n_aircraft)
         self._trace = KernelScratch().trace(1, self.source.n_aircraft, 0)
         mapping = cfg.action_mapping
         self._mapping = (
@@ -417,6 +418,7 @@ class EncounterWorld:
         flying, self._flying_spare = self._flying_spare, self.flying
         outcome = _fly_world_period(
             actions, state, *self._mapping, self._wind, self._period_steps, sim.params, self._grad, self._command,
+            self._aircraft_lanes,
             trace.min_airspeed_kt, trace.max_airspeed_kt, trace.violation_steps, trace.worst_excursion_kt,
             trace.steps_flown, trace.los_pairs, trace.min_separation_nm, trace.steps_done, trace.violated,
             trace.record, self._flying_spare,

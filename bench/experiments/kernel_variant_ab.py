@@ -15,7 +15,8 @@ Variants:
 - ``commands-call``: the law's commands (``kernel._commands``) compiled as a function of
   their own, called, instead of inlined at numba's level into the world loop;
 - ``no-ordinary-step``: every step of the scalar path flown by its general code, none by
-  the one-world ordinary step (``kernel._ordinary_step``): the kernel before that step;
+  the one-world runs of ordinary steps (``kernel._ordinary_run``): the kernel before the
+  one-world ordinary step;
 - ``lane-trig-call``: the lane step's atan2 and sincos loops call the functions compiled
   on their own (``trig.poly_atan2``, ``trig.poly_sincos``) instead of their inlined forms:
   the kernel before it inlined them there (``trig-inline`` inlines them everywhere).

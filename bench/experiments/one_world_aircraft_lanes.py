@@ -14,7 +14,10 @@ the medians per flight, and whether every state, outcome array and return value 
 same bit for bit.
 
 Not adopted: the copies in and out at every step and the pair loops leave little of what
-the lanes save at 4 to 6 aircraft (see the README, "Safety filter").
+the lanes save at 4 to 6 aircraft (see the README, "Safety filter"). The kernel now keeps
+the aircraft in lanes from one ordinary step to the next (``kernel._ordinary_run``;
+``ordinary_run_ab.py``), and no longer has the one-step form this script replaces: it runs
+on the kernel of commit 9a8b1ef or earlier (``git checkout 9a8b1ef -- atc_nf_env``).
 
 Run: python bench/experiments/one_world_aircraft_lanes.py [PAD] [scenario,...]
      (PAD 0: no padding, lanes = aircraft; default 8)
@@ -260,7 +263,9 @@ _src = _src.replace("""_ordinary_step(
                 state, command, wind_x, wind_y, params, nf_consts, min_sep2, min_airspeed, max_airspeed,
                 violation_steps, worst_excursion, steps_flown, lanes, temp,
             )""")
-assert "_ordinary_step_lanes(" in _src
+if "_ordinary_step_lanes(" not in _src:
+    raise SystemExit("this kernel flies runs of ordinary steps, not the one-step form this experiment replaces: "
+                     "run it on the kernel of commit 9a8b1ef or earlier (see its docstring)")
 ns = dict(vars(kernel)); ns["_ordinary_step_lanes"] = _ordinary_step_lanes
 exec(_src, ns)  # noqa: S102 - the kernel's own loop, with the lane step in place of its ordinary step
 _advance_world_lanes = njit(fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)(ns["_advance_world_lanes"])
