@@ -342,12 +342,10 @@ class SafetyFilter:
         if self._mpc is not None:
             counts["shield_mpc_fallbacks"] += 1
             self._share_wind_estimate()
-            decided = np.asarray(self._mpc.act(view), dtype=np.float64)
-            applied = np.where(flying[:, None], decided, proposal)
+            applied = self._apply(proposal, np.asarray(self._mpc.act(view), dtype=np.float64), flying)
             survived_m, positions_m, alive_m = self._predict(state, applied[None])
             if survived_m[0] < self._full_steps():
                 counts["shield_unresolved"] += 1
-            counts["shield_aircraft_changed"] += int((flying & (applied != proposal).any(axis=1)).sum())
             memory.remember(view.time_s + self.period_s, positions_m[0], alive_m[0])
             return applied
         counts["shield_unresolved"] += 1

@@ -9,7 +9,7 @@ atan.c, the minimax sin and cos of sin.c with its three-part reduction), written
 selects instead of branches, so that a loop into which they are inlined can be
 vectorized. The kernel calls them, compiled on their own, from its general scalar path,
 and inlines them (``poly_atan2_inlined``, ``poly_sincos_inlined``) into its lane step's
-loops and its one-world ordinary step: the same Python under the same flags, so every path
+loops and its one-world runs of ordinary steps: the same Python under the same flags, so every path
 computes the same bits (``tests/test_kernel_lanes.py``,
 ``tests/test_kernel_ordinary_step.py``). They also make the
 kernel's trajectories independent of the host's libm, whose results differ between
@@ -108,8 +108,8 @@ def sincos(angle: float) -> tuple[float, float]:
 # The same two functions inlined at numba's level into their callers: the lane step's two
 # loops over worlds, which LLVM then vectorizes (B = 1000 flew 1.29-1.30x as fast, at the
 # same first compilation: ``bench/experiments/kernel_variant_ab.py --variant lane-trig-call``
-# times the kernel that calls them), and the one-world ordinary step (``kernel._ordinary_step``,
-# compiled on its own). Not the general scalar path: inlined everywhere they lengthened the
+# times the kernel that calls them), and the one-world runs of ordinary steps
+# (``kernel._ordinary_run``, compiled on its own). Not the general scalar path: inlined everywhere they lengthened the
 # kernel's first compilation by about a third for no gain at B = 1 (``--variant trig-inline``).
 # The same Python under the same flags: the same bits.
 poly_atan2_inlined = njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")(
