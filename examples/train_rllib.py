@@ -2,6 +2,7 @@
 
     python examples/train_rllib.py                    # PettingZoo parallel form
     python examples/train_rllib.py --form aec         # AEC form (agents act in turn)
+    python examples/train_rllib.py --form centralized # one agent steering every aircraft
     RAY_ADDRESS=auto python examples/train_rllib.py --env-runners 64 --iterations 500
 
 Needs ``ray[rllib]`` (``examples/requirements-rllib.txt``: it pins gymnasium 1.2.2, so
@@ -30,7 +31,7 @@ def shared_policy(agent_id: str, episode: object, **kwargs: object) -> str:
 
 def main(argv: list[str] | None = None) -> float:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--form", choices=["parallel", "aec"], default="parallel")
+    parser.add_argument("--form", choices=["parallel", "aec", "centralized"], default="parallel")
     parser.add_argument("--scenario", default="converging-4")
     parser.add_argument("--iterations", type=int, default=2)
     parser.add_argument("--env-runners", type=int, default=1, help="remote env runners (0: sample in this process)")
@@ -38,18 +39,16 @@ def main(argv: list[str] | None = None) -> float:
     args = parser.parse_args(argv)
 
     ray.init(address=os.environ.get("RAY_ADDRESS"), include_dashboard=False, log_to_driver=False)
-    parallel_name, aec_name = register_envs()
+    names = dict(zip(("parallel", "aec", "centralized"), register_envs()))
     config = (
         PPOConfig()
-        .environment(
-            parallel_name if args.form == "parallel" else aec_name,
-            env_config={"scenario": args.scenario, "max_cycles": 36},
-        )
+        .environment(names[args.form], env_config={"scenario": args.scenario, "max_cycles": 36})
         .env_runners(num_env_runners=args.env_runners, rollout_fragment_length="auto")
-        .multi_agent(policies={"shared"}, policy_mapping_fn=shared_policy)
         .training(train_batch_size_per_learner=args.batch, minibatch_size=64, num_epochs=2, lr=3e-4)
         .debugging(seed=0)
     )
+    if args.form != "centralized":  # one policy shared by every aircraft
+        config = config.multi_agent(policies={"shared"}, policy_mapping_fn=shared_policy)
     algo = config.build_algo()
     episode_return = float("nan")
     try:

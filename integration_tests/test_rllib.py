@@ -16,6 +16,13 @@ def test_ppo_trains_on_the_parallel_form_with_a_remote_env_runner(run_example) -
     assert "iteration 2: env steps 512" in out
 
 
+def test_single_agent_ppo_trains_on_the_centralized_form_with_a_remote_env_runner(run_example) -> None:
+    """The remote runner has not imported atc_nf_env, and RLlib's default model emits one
+    flat action vector: the registered creator imports it and flattens the (M, 2) action."""
+    out = run_example("train_rllib.py", "--form", "centralized", "--iterations", "2", "--env-runners", "1")
+    assert "iteration 2: env steps 512" in out
+
+
 def test_ppo_trains_on_the_aec_form(run_example) -> None:
     out = run_example("train_rllib.py", "--form", "aec", "--iterations", "2", "--env-runners", "0")
     assert "iteration 2:" in out
