@@ -5,12 +5,15 @@ SB3 env per aircraft (parameter sharing), seedable by ``PPO(..., seed=...)``.
     from atc_nf_env.integrations.supersuit import make_supersuit_sb3_vec_env
     venv = make_supersuit_sb3_vec_env(num_vec_envs=4, num_cpus=2, scenario="converging-4")
     PPO("MlpPolicy", venv, seed=0).learn(10_000)
+    venv.close()   # without it, the worker processes keep the interpreter from exiting
 
 SuperSuit's chain is ``black_death_v3`` (an aircraft that has arrived sees zeros until
 its encounter ends, so every copy keeps a fixed number of agents) →
 ``pettingzoo_env_to_vec_env_v1`` → ``concat_vec_envs_v1(..., base_class=
 "stable_baselines3")``; the last lacks the ``seed`` method SB3 calls, which
-``atc_nf_env.envs.vector.seedable_sb3_vec_env`` adds. For speed in one process the
+``atc_nf_env.envs.vector.seedable_sb3_vec_env`` adds. Build the chain yourself only with
+``black_death_v3`` first: without it, the first arrival changes the number of agents, a
+worker fails, and the main process waits on its pipe for ever. For speed in one process the
 native ``atc_nf_env.envs.vector.make_sb3_vec_env(B, mode="shared")`` steps B worlds in
 one kernel call instead.
 """
