@@ -12,8 +12,8 @@ its encounter ends, so every copy keeps a fixed number of agents) →
 ``pettingzoo_env_to_vec_env_v1`` → ``concat_vec_envs_v1(..., base_class=
 "stable_baselines3")``; the last lacks the ``seed`` method SB3 calls, which
 ``atc_nf_env.envs.vector.seedable_sb3_vec_env`` adds. Build the chain yourself only with
-``black_death_v3`` first: without it, the first arrival changes the number of agents, a
-worker fails, and the main process waits on its pipe for ever. For speed in one process the
+``black_death_v3`` first: ``pettingzoo_env_to_vec_env_v1`` needs every agent alive at
+every step, and without it the multi-process chain hangs the main process (SuperSuit 3.11). For speed in one process the
 native ``atc_nf_env.envs.vector.make_sb3_vec_env(B, mode="shared")`` steps B worlds in
 one kernel call instead.
 """
