@@ -47,11 +47,12 @@ test: $(BIN)/atc-nf
 
 # The MARL libraries (integration_tests/, examples/train_*.py) in venvs of their own:
 # RLlib pins an older gymnasium than the default venv, BenchMARL an older torchrl than
-# TorchRL's example uses. Each example trains a few iterations; each venv's tests are
+# TorchRL's example uses, AgileRL a pettingzoo of its own. Each example trains a few iterations; each venv's tests are
 # bounded by INTEGRATIONS_TIMEOUT_S seconds.
 RLLIB_VENV ?= .venv-rllib
 TORCH_VENV ?= .venv-torch
 BENCHMARL_VENV ?= .venv-benchmarl
+AGILERL_VENV ?= .venv-agilerl
 INTEGRATIONS_TIMEOUT_S ?= 1500
 
 $(RLLIB_VENV)/.installed: pyproject.toml examples/requirements-rllib.txt
@@ -67,10 +68,15 @@ $(BENCHMARL_VENV)/.installed: pyproject.toml examples/requirements-benchmarl.txt
 	$(BENCHMARL_VENV)/bin/pip install --quiet --no-deps benchmarl==1.5.2
 	touch $@
 
-test-integrations: $(RLLIB_VENV)/.installed $(TORCH_VENV)/.installed $(BENCHMARL_VENV)/.installed
+$(AGILERL_VENV)/.installed: pyproject.toml examples/requirements-agilerl.txt
+	$(call torch_venv,$(AGILERL_VENV),-e . -r examples/requirements-agilerl.txt)
+	touch $@
+
+test-integrations: $(RLLIB_VENV)/.installed $(TORCH_VENV)/.installed $(BENCHMARL_VENV)/.installed $(AGILERL_VENV)/.installed
 	timeout $(INTEGRATIONS_TIMEOUT_S) $(TORCH_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_torch_libraries.py
 	timeout $(INTEGRATIONS_TIMEOUT_S) $(BENCHMARL_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_benchmarl.py
 	timeout $(INTEGRATIONS_TIMEOUT_S) $(RLLIB_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_rllib.py
+	timeout $(INTEGRATIONS_TIMEOUT_S) $(AGILERL_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_agilerl.py
 
 bench: $(BIN)/atc-nf
 	$(BIN)/python bench/bench_kernel.py --write
@@ -84,4 +90,4 @@ reproduce: $(BIN)/atc-nf
 	$(BIN)/atc-nf reproduce --runs 1000
 
 clean:
-	rm -rf $(VENV) $(DEMO_VENV) $(RLLIB_VENV) $(TORCH_VENV) $(BENCHMARL_VENV) out
+	rm -rf $(VENV) $(DEMO_VENV) $(RLLIB_VENV) $(TORCH_VENV) $(BENCHMARL_VENV) $(AGILERL_VENV) out
