@@ -47,8 +47,8 @@ test: $(BIN)/atc-nf
 
 # The MARL libraries (integration_tests/, examples/train_*.py) in venvs of their own:
 # RLlib pins an older gymnasium than the default venv, BenchMARL an older torchrl than
-# TorchRL's example uses, AgileRL a pettingzoo of its own. Each example trains a few iterations; each venv's tests are
-# bounded by INTEGRATIONS_TIMEOUT_S seconds.
+# TorchRL's example uses, AgileRL a pettingzoo of its own. Each example trains a few
+# iterations; each venv's tests are bounded by INTEGRATIONS_TIMEOUT_S seconds.
 RLLIB_VENV ?= .venv-rllib
 TORCH_VENV ?= .venv-torch
 BENCHMARL_VENV ?= .venv-benchmarl
