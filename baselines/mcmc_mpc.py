@@ -174,6 +174,9 @@ from atc_nf_env.kernel import (
     S_X,
     S_Y,
 )
+# The proposal's draws live in the core, which the safety filter's sampled tier shares;
+# re-exported here, where they were first defined.
+from atc_nf_env.proposals import homing_mixture_draws, inside_workspace
 from atc_nf_env.scenarios import Scenario
 from atc_nf_env.simulation import WorldView
 from atc_nf_env.units import AIRSPEED_NOMINAL_KT, DECISION_PERIOD_S, KT_PER_MPS, SECONDS_PER_HOUR, WIND_SIGMA_MPS
@@ -294,45 +297,6 @@ class MPCSettings:
 def _wrap(angle: np.ndarray) -> np.ndarray:
     """Angles wrapped to [−π, π), rad."""
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def inside_workspace(waypoints: np.ndarray, limit_nm: float) -> np.ndarray:
-    """Waypoints (..., 2) nm pulled toward the centre to within ``limit_nm`` of it, in place;
-    returns them. (The safety filter's compiled alternatives use the scalar counterpart,
-    ``atc_nf_env.shield_prediction._inside``.)"""
-    radius = np.hypot(waypoints[..., 0], waypoints[..., 1])
-    waypoints *= np.minimum(1.0, limit_nm / np.maximum(radius, 1e-12))[..., None]
-    return waypoints
-
-
-def homing_mixture_draws(
-    rng: np.random.Generator,
-    settings: MPCSettings,
-    heading: np.ndarray,
-    bearing: np.ndarray,
-    count: int,
-    heading_share: float,
-    distance_std_nm: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """``count`` draws of the "homing" proposal's waypoints of N aircraft: directions (count,
-    N) rad and distances (count, N) nm.
-
-    Per aircraft, a mixture: with probability ``heading_share`` an angle uniform in
-    ±``settings.recovery_angle_rad`` around its heading (N,) rad, otherwise uniform in
-    ±``settings.angle_range_rad`` around its bearing (N,) rad to the destination; the
-    distance is normal around ``settings.distance_mean_nm`` with ``distance_std_nm``. The
-    MCMC-MPC draws its candidates from it, and the safety filter its sampled alternatives.
-    """
-    n = heading.shape[0]
-    distance = rng.normal(settings.distance_mean_nm, distance_std_nm, (count, n))
-    around_heading = rng.random((count, n)) < heading_share
-    angle = rng.uniform(-1.0, 1.0, (count, n))
-    direction = np.where(
-        around_heading,
-        heading[None, :] + settings.recovery_angle_rad * angle,
-        bearing[None, :] + settings.angle_range_rad * angle,
-    )
-    return direction, distance
 
 
 @dataclass
