@@ -245,7 +245,7 @@ def test_study_and_cli_count_interventions(tmp_path, capsys):
     written = json.loads(out.read_text())
     assert written["shield"]["decisions"] == 2
     assert set(SHIELD_INFO_KEYS) <= set(written["policy_info"])
-    assert "shield_decisions 2" in capsys.readouterr().out
+    assert "safety filter: 2 decisions" in capsys.readouterr().out
 
 
 def test_summarize_interventions():
