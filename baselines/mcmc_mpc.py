@@ -201,7 +201,35 @@ _COST_FLOOR_NM = 1e-9
 
 @dataclass(frozen=True)
 class MPCSettings:
-    """Settings of the MCMC-MPC; the defaults are the paper's (Table I, section IV).
+    """Settings of the MCMC-MPC.
+
+    The defaults are this project's controller, not the paper's: Table I's sampler with
+    the paper's K = 1000, N = 4, T = 5 min and distance N(100 nm, 10 nm) (section IV-C),
+    under the default ``proposal="homing"``, which adds to Table I
+
+    - the chain's start Θ_0: every aircraft aimed at its destination,
+      ``home_distance_nm`` (130 nm) out, turned at most ``recovery_angle_rad`` from its
+      heading (Table I leaves the start free; "paper" starts from the first draw);
+    - a mixture proposal: with probability ``recovery_fraction`` (0.25) an aircraft's
+      angle is uniform within ±``recovery_angle_rad`` (60°) of its heading instead of
+      within ±``angle_range_rad`` (90°) of the line to its destination;
+    - a cost term: each aircraft's time flown in the horizon, as distance at 454 kt, is
+      added to (6)'s remaining distances;
+    - envelope margins: the prediction holds the airspeed 4 kt inside [366, 540] kt
+      (``HOMING_ENVELOPE_MARGIN_KT``), 10 kt at an episode's first decision
+      (``HOMING_FIRST_DECISION_MARGIN_KT``) ("paper": 0 kt);
+    - wider rounds: up to ``search_rounds`` (2) more rounds of K candidates, each wider,
+      before a fallback ("paper": none).
+
+    ``proposal="paper"`` (CLI ``--proposal paper``) is Table I's proposal, chain start and
+    cost (6) as printed. Under either proposal three defaults are not the paper's either:
+    ``constraint_check="every-step"`` (the paper checks at the sampling instants t + pT:
+    ``"sampling-instants"``), ``acceptance="standard"`` (Table I prints the proposal
+    ratio the other way up: ``"table-i"``) and ``wind_model="estimated"`` (the paper
+    does not say what wind its prediction assumes; ``"none"`` predicts still air, the
+    forecast the paper sets to zero). ``MPCSettings(proposal="paper",
+    constraint_check="sampling-instants", acceptance="table-i", wind_model="none")`` comes
+    closest to Table I and section III as printed.
 
     Attributes:
         period_s: T, the sampling period, s.
@@ -542,6 +570,9 @@ class MCMCMPC:
             "fallbacks_breach_predicted": int(sum(d.applied_breach_predicted for d in self.decisions)),
             "wider_searches": int(sum(d.rounds > 1 for d in self.decisions)),
             "rescued_by_wider_search": int(sum(d.rounds > 1 and not d.fallback for d in self.decisions)),
+            # Decisions whose chain accepted no move: they apply the chain's start (under
+            # "homing" every aircraft aimed home, under "paper" the first draw).
+            "start_kept": int(sum(not d.fallback and d.chain_acceptance == 0.0 for d in self.decisions)),
             "feasible_fraction": {
                 "min": float(min(fractions)) if fractions else None,
                 "mean": float(np.mean(fractions)) if fractions else None,
