@@ -81,9 +81,12 @@ def _positive_int(text: str) -> int:
 
 def _seed(text: str) -> int:
     try:
-        return int(text)
+        value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: must be an integer >= 0") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be an integer >= 0")
+    return value
 
 
 # -- options -----------------------------------------------------------------------------
@@ -274,7 +277,9 @@ def _fly(args: argparse.Namespace) -> int:
     info = policy.episode_info() if hasattr(policy, "episode_info") else {}
     label = Path(args.policy).stem if args.policy.lower().endswith(".zip") else args.policy
     label += "+shield" if args.shield else ""
-    print(fly_table(result, label, config, info, compile_s, wind_sigma_mps=args.wind_sigma))
+    settings = ", ".join(f"{key.replace('_', ' ')} {value}" for key, value in _policy_kwargs(args).items())
+    print(fly_table(result, f"{label} ({settings})" if settings else label, config, info, compile_s,
+                    wind_sigma_mps=args.wind_sigma))
     if args.summary_json:
         summary = fly_summary(result, args.policy, info, compile_s)
         args.summary_json.write_text(_json(summary) + "\n")

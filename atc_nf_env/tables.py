@@ -187,7 +187,9 @@ def evaluate_table(summary: dict[str, Any], records: list[dict[str, Any]], study
     config = SimConfig.preset(study.physics)
     runs = summary["runs"]
     envelope = f"[{config.airspeed_min_kt:.0f}, {config.airspeed_max_kt:.0f}] kt"
-    head = (f"{study.policy}{'+shield' if study.shield else ''} on {study.scenario}, wind σ "
+    settings = "".join(f", {key.replace('_', ' ')} {value}" for key, value in study.policy_kwargs.items())
+    head = (f"{study.policy}{'+shield' if study.shield else ''}{f' ({settings[2:]})' if settings else ''} on "
+            f"{study.scenario}, wind σ "
             f"{study.wind_sigma_mps:g} m/s, seeds {first_seed}–{first_seed + runs - 1}")
     success = round(summary["success_rate"] * runs)
     ci = summary.get("success_rate_ci95")
