@@ -113,7 +113,7 @@ def test_cli_evaluate_writes_the_summary_contract(tmp_path, capsys):
     # On the terminal, a table for people, not the JSON.
     out = capsys.readouterr().out
     assert "{" not in out and "None" not in out
-    assert "mpc on converging-3, wind σ 5.17 m/s, seeds 0–2" in out
+    assert "mpc (extractions 60) on converging-3, wind σ 5.17 m/s, seeds 0–2" in out
     home = round(summary["success_rate"] * 3)
     assert f"every aircraft home    {home}/3" in out
     assert f"fallbacks              {summary['fallbacks']} of {summary['decisions']} decisions" in out
