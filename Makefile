@@ -86,8 +86,15 @@ bench: $(BIN)/atc-nf
 	$(BIN)/python bench/bench_envs.py --write
 	$(BIN)/python bench/bench_shield.py --write
 
+# The paper's section IV from fresh runs, into out/reproduction/ (REPRODUCE_ARGS="--runs 1000
+# --write" updates the tracked REPRODUCTION.md and docs/figures/ instead).
+REPRODUCE_ARGS ?= --runs 1000
 reproduce: $(BIN)/atc-nf
-	$(BIN)/atc-nf reproduce --runs 1000
+	$(BIN)/atc-nf reproduce $(REPRODUCE_ARGS)
 
+# The venvs, out/, and numba's and Python's caches (a stale numba cache can outlive the
+# source it was compiled from: numba keys a function on its own file only).
 clean:
 	rm -rf $(VENV) $(DEMO_VENV) $(RLLIB_VENV) $(TORCH_VENV) $(BENCHMARL_VENV) $(AGILERL_VENV) out
+	find . -path ./.git -prune -o \( -name '*.nbi' -o -name '*.nbc' \) -type f -print | xargs rm -f
+	find . -path ./.git -prune -o -name __pycache__ -type d -print | xargs rm -rf

@@ -1,43 +1,100 @@
-"""The ``atc-nf`` command line."""
+"""The ``atc-nf`` command line.
+
+``fly``, ``evaluate`` and ``reproduce`` are the core's own subcommands; more come from the
+``atc_nf_env.commands`` entry-point group (this project declares ``train`` and ``imitate``,
+the agents' scripts, there), each loaded only when it runs. A subcommand whose extra is
+not installed says which extra to install. Each subcommand's options are built, and the
+simulator imported, only when that subcommand is asked for: ``atc-nf --help`` imports
+neither numba nor torch.
+
+What ``fly`` and ``evaluate`` print is for people (aligned tables, rounded); the JSON goes
+to files (``--summary-json``, ``--out``).
+"""
 
 from __future__ import annotations
 
 import argparse
-import json
+import math
 import os
+import re
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Callable, Sequence
 
-import numpy as np
+#: Entry-point group of further subcommands: ``NAME = "module:main"``, where
+#: ``main(argv)`` parses its own options (and its --help) and returns the exit status.
+COMMAND_GROUP = "atc_nf_env.commands"
 
-from atc_nf_env.config import PHYSICS_PRESETS, SimConfig
-from atc_nf_env.episode import MAX_EPISODE_S, run_episode, warm_up
-from atc_nf_env.evaluate import BACKENDS, Study, evaluate
-from atc_nf_env.metrics import format_run, peak_rss_mb, summarize
-from atc_nf_env.policy import available_policies, make_policy
-from atc_nf_env.scenarios import make_scenario
-from atc_nf_env.shield import SafetyFilter, summarize_interventions
-from atc_nf_env.units import WIND_SIGMA_MPS
+#: The core's subcommands and their one-line help.
+CORE_COMMANDS = {
+    "fly": "fly one episode and print a table per aircraft",
+    "evaluate": "a Monte Carlo study: many seeded episodes, in parallel, resumable",
+    "reproduce": "the paper's figures and the reproduction table from fresh runs (into out/ unless --write)",
+}
+#: One-line help of the subcommands this project declares in ``COMMAND_GROUP`` (any
+#: other installed subcommand is listed with the module that provides it).
+_PLUGIN_HELP = {
+    "train": "train a Stable-Baselines3 agent (PPO parameter-shared, or PPO/SAC centralized); needs the rl extra",
+    "imitate": "imitate the MCMC-MPC: demonstrations, behaviour cloning, DAgger, PPO fine-tuning; needs the rl extra",
+}
+#: Subcommands whose script owns its options (and its --help).
+_DELEGATED_CORE = ("reproduce",)
 
+
+def make_policy(spec: str, **settings: Any):
+    """``atc_nf_env.policy.make_policy``, imported when first called (it loads the simulator)."""
+    from atc_nf_env.policy import make_policy as make
+
+    return make(spec, **settings)
+
+
+# -- option types ------------------------------------------------------------------------
 def _non_negative_float(text: str) -> float:
-    value = float(text)
-    if not value >= 0:  # also rejects NaN
-        raise argparse.ArgumentTypeError(f"{text!r}: must be a number >= 0")
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a number >= 0") from None
+    if not value >= 0 or math.isinf(value):  # also rejects NaN
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number >= 0")
+    return value
+
+
+def _positive_minutes(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a number of minutes > 0") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number of minutes > 0")
     return value
 
 
 def _positive_int(text: str) -> int:
-    value = int(text)
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be an integer >= 1") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"{text!r}: must be an integer >= 1")
     return value
 
 
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be an integer >= 0") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be an integer >= 0")
+    return value
+
+
+# -- options -----------------------------------------------------------------------------
 def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
     # No argparse defaults here: an option left out is not passed, and the MPC keeps its
-    # own (the paper's, except --proposal), which the help text quotes.
-    group = parser.add_argument_group("MCMC-MPC settings (policy mpc; defaults are the paper's except --proposal)")
+    # own, which the help text quotes.
+    group = parser.add_argument_group(
+        "MCMC-MPC settings (policy mpc; the defaults are the homing proposal's, see --proposal)")
     group.add_argument("--extractions", type=_positive_int, help="K, proposals per decision (default: 1000)")
     group.add_argument("--horizon", type=_positive_int, help="N, periods in the horizon (default: 4)")
     group.add_argument("--wind-model", choices=("none", "sampled", "estimated"),
@@ -48,8 +105,9 @@ def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
                        help="Metropolis-Hastings acceptance: standard, or as printed in Table I (default: standard)")
     group.add_argument("--cost-exponent", type=float, help="J, the chain's target is C^-J (default: 1)")
     group.add_argument("--proposal", choices=("homing", "paper"),
-                       help="homing (starts the chain aimed home, recovers missed aircraft, searches wider "
-                            "before a fallback) or paper (Table I as printed) (default: homing)")
+                       help="homing (the chain starts aimed home, a mixture proposal, a time-flown cost term, "
+                            "4/10-kt envelope margins, wider rounds before a fallback) or paper (Table I as "
+                            "printed) (default: homing)")
     group.add_argument("--search", choices=("lazy", "exhaustive"),
                        help="lazy flies a candidate only as far as the chain needs; exhaustive flies all K over "
                             "the whole horizon and measures every decision's feasible fraction; both pick the "
@@ -66,6 +124,11 @@ def _policy_kwargs(args: argparse.Namespace) -> dict:
 
 
 def _add_episode_options(parser: argparse.ArgumentParser) -> None:
+    from atc_nf_env.config import PHYSICS_PRESETS
+    from atc_nf_env.episode import MAX_EPISODE_S
+    from atc_nf_env.policy import available_policies
+    from atc_nf_env.units import WIND_SIGMA_MPS
+
     parser.add_argument(
         "--policy",
         default="mpc",
@@ -83,12 +146,12 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
         default=WIND_SIGMA_MPS,
         help="standard deviation of each wind component, m/s",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seeds the wind and the policy")
+    parser.add_argument("--seed", type=_seed, default=0, help="seeds the wind and the policy")
     parser.add_argument(
         "--max-minutes",
-        type=_non_negative_float,
+        type=_positive_minutes,
         default=MAX_EPISODE_S / 60,
-        help="time limit of an episode, min",
+        help="time limit of an episode, min (a whole number of 5-s integration steps)",
     )
     parser.add_argument("--physics", choices=tuple(PHYSICS_PRESETS), default="default",
                         help="NF settings: default, or paper-nf (proximity range 30/15 nm: the paper's "
@@ -101,6 +164,28 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
     _add_mpc_options(parser)
 
 
+def _add_fly_options(parser: argparse.ArgumentParser) -> None:
+    _add_episode_options(parser)
+    parser.add_argument("--plots", type=Path,
+                        help="write trajectory and airspeed figures into this folder (created if missing)")
+    parser.add_argument("--animate", type=Path,
+                        help="write an animation of the episode to this file (.gif, .png: animated PNG, .webp)")
+
+
+def _add_evaluate_options(parser: argparse.ArgumentParser) -> None:
+    from atc_nf_env.evaluate import BACKENDS
+
+    _add_episode_options(parser)
+    parser.add_argument("--runs", type=_positive_int, default=100,
+                        help="number of episodes (seeds SEED..SEED+RUNS-1)")
+    parser.add_argument("--workers", type=_positive_int, help="worker processes (default: all cores)")
+    parser.add_argument("--backend", choices=BACKENDS, default="local", help="local processes or a Ray cluster")
+    parser.add_argument("--out", type=Path, help="JSON-lines file receiving every finished run")
+    parser.add_argument("--resume", action="store_true", help="finish the study in --out, skipping runs already there")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+# -- checks before anything flies --------------------------------------------------------
 def _check_output_file(path: Path | None, option: str) -> None:
     """Refuse, before anything flies, an output file that cannot be written: a folder that
     does not exist (rather than create folders silently), a directory, no write access."""
@@ -128,52 +213,77 @@ def _check_output_folder(path: Path | None, option: str) -> None:
         raise ValueError(f"{option} {path} is not writable")
 
 
+def _check_animation(path: Path | None) -> None:
+    """Refuse, before anything flies, an animation file the writer cannot write."""
+    if path is None:
+        return
+    from atc_nf_env.rendering import animation_formats
+
+    formats = animation_formats()
+    if path.suffix.lower() not in formats:
+        allowed = ", ".join(f"{suffix} ({what})" for suffix, what in formats.items())
+        raise ValueError(f"--animate {path}: cannot write {path.suffix or 'a file without extension'}; "
+                         f"supported: {allowed}")
+    _check_output_file(path, "--animate")
+
+
+def _max_time_s(minutes: float, dt_s: float) -> float:
+    """``--max-minutes`` as seconds, or a ValueError in minutes: the time limit is flown in
+    whole integration steps of ``dt_s``."""
+    from atc_nf_env.episode import MAX_TIME_LIMIT_S
+
+    step_min = dt_s / 60.0
+    steps = minutes / step_min
+    if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 1:
+        below, above = max(math.floor(steps), 1) * step_min, max(math.ceil(steps), 1) * step_min
+        nearest = f"{below:.4g} or {above:.4g}" if below != above else f"{above:.4g}"
+        raise ValueError(
+            f"--max-minutes {minutes:g}: the time limit is flown in whole integration steps of {dt_s:g} s "
+            f"({step_min:.4g} min); give a multiple of {step_min:.4g} min, e.g. {nearest} (any whole number of "
+            "minutes is one)"
+        )
+    if minutes * 60.0 > MAX_TIME_LIMIT_S * (1 + 1e-12):
+        raise ValueError(f"--max-minutes {minutes:g}: longer than any flight; allowed up to {MAX_TIME_LIMIT_S / 60:g}"
+                         " min (24 h)")
+    return round(steps) * dt_s
+
+
+# -- fly -----------------------------------------------------------------------------------
 def _fly(args: argparse.Namespace) -> int:
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.tables import fly_summary, fly_table
+
     _check_output_file(args.summary_json, "--summary-json")
     _check_output_folder(args.plots, "--plots")
-    _check_output_file(args.animate, "--animate")
+    _check_animation(args.animate)
+    config = SimConfig.preset(args.physics)
+    max_time_s = _max_time_s(args.max_minutes, config.dt_s)
+    from atc_nf_env.episode import run_episode, warm_up
+    from atc_nf_env.scenarios import make_scenario
+
     scenario = make_scenario(args.scenario, seed=args.seed)
     policy = make_policy(args.policy, **_policy_kwargs(args))
     if args.shield:
+        from atc_nf_env.shield import SafetyFilter
+
         policy = SafetyFilter(policy)
-    record_every = 1 if (args.plots or args.animate) else 0
-    config = SimConfig.preset(args.physics)
+    # Every integration step recorded: the table's per-aircraft separation and airspeeds
+    # come from the recording (one episode's, a few MB at most).
+    record_every = 1
     compile_s = warm_up(policy, scenario, seed=args.seed, wind_sigma_mps=args.wind_sigma,
                         config=config, record_every=record_every)
-    result = run_episode(
-        policy,
-        scenario,
-        seed=args.seed,
-        wind_sigma_mps=args.wind_sigma,
-        max_time_s=args.max_minutes * 60.0,
-        record_every=record_every,
-        config=config,
-    )
-    print(format_run(result.metrics))
-    print(f"  times above are warm; the warm-up before them (numba compiling or loading its cache, the "
-          f"policy's first decision) took {compile_s:.2f} s (compile_s)")
+    result = run_episode(policy, scenario, seed=args.seed, wind_sigma_mps=args.wind_sigma, max_time_s=max_time_s,
+                         record_every=record_every, config=config)
     info = policy.episode_info() if hasattr(policy, "episode_info") else {}
-    if info:
-        print("  policy: " + ", ".join(f"{key} {value}" for key, value in info.items()))
-    if args.summary_json:
-        summary = summarize([result.metrics], peak_rss_mb=peak_rss_mb(), compile_s=compile_s)
-        summary["policy"] = args.policy
-        if len(result.decision_s):
-            summary["decision_s"].update(median=float(np.median(result.decision_s)),
-                                         p99=float(np.percentile(result.decision_s, 99)),
-                                         max=float(result.decision_s.max()))
-        shield = summarize_interventions([info])
-        if shield is not None:
-            summary["shield"] = shield
-        info = dict(info)
-        if "fallbacks" in info:  # at the top level, as in evaluate's summary
-            summary["fallbacks"] = info.pop("fallbacks")
-        summary["policy_info"] = info
-        summary["run"] = result.metrics.to_dict()
-        args.summary_json.write_text(json.dumps(summary, indent=2) + "\n")
-        print(f"summary written to {args.summary_json}")
     label = Path(args.policy).stem if args.policy.lower().endswith(".zip") else args.policy
     label += "+shield" if args.shield else ""
+    settings = ", ".join(f"{key.replace('_', ' ')} {value}" for key, value in _policy_kwargs(args).items())
+    print(fly_table(result, f"{label} ({settings})" if settings else label, config, info, compile_s,
+                    wind_sigma_mps=args.wind_sigma))
+    if args.summary_json:
+        summary = fly_summary(result, args.policy, info, compile_s)
+        args.summary_json.write_text(_json(summary) + "\n")
+        print(f"summary written to {args.summary_json}")
     if args.plots:
         from atc_nf_env.plotting import write_episode_plots
 
@@ -181,27 +291,39 @@ def _fly(args: argparse.Namespace) -> int:
                                     wind_sigma_mps=args.wind_sigma)
         print("figures written: " + ", ".join(str(p) for p in paths))
     if args.animate:
-        from atc_nf_env.rendering import save_animation
-
         from atc_nf_env.plotting import episode_title
+        from atc_nf_env.rendering import save_animation
 
         title = episode_title(result, "", label, args.wind_sigma).rstrip(": ")
         print(f"animation written to {save_animation(result, args.animate, scenario=scenario, title=title)}")
     return 0
 
 
+def _json(data: Any) -> str:
+    import json
+
+    return json.dumps(data, indent=2)
+
+
+# -- evaluate ------------------------------------------------------------------------------
 def _evaluate(args: argparse.Namespace) -> int:
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.evaluate import Study, evaluate, read_results
+    from atc_nf_env.tables import evaluate_table
+
     _check_output_file(args.out, "--out")
     _check_output_file(args.summary_json, "--summary-json")
+    max_time_s = _max_time_s(args.max_minutes, SimConfig.preset(args.physics).dt_s)
     study = Study(
         policy=args.policy,
         scenario=args.scenario,
         wind_sigma_mps=args.wind_sigma,
         policy_kwargs=_policy_kwargs(args),
-        max_time_s=args.max_minutes * 60.0,
+        max_time_s=max_time_s,
         physics=args.physics,
         shield=args.shield,
     )
+    records: list[dict[str, Any]] = []
     summary = evaluate(
         study,
         args.runs,
@@ -211,38 +333,76 @@ def _evaluate(args: argparse.Namespace) -> int:
         out=args.out,
         resume=args.resume,
         progress=not args.no_progress,
+        on_run=records.append,
     )
+    if args.out is not None:  # a resumed study: the runs of earlier invocations too
+        seeds = range(args.seed, args.seed + args.runs)
+        records = [r for r in read_results(args.out)[1] if r["seed"] in seeds]
     summary["policy"] = args.policy
-    text = json.dumps(summary, indent=2)
-    print(text)
+    print(evaluate_table(summary, records, study, first_seed=args.seed))
     if args.summary_json:
-        args.summary_json.write_text(text + "\n")
-        print(f"summary written to {args.summary_json}", file=sys.stderr)
+        args.summary_json.write_text(_json(summary) + "\n")
+        print(f"summary written to {args.summary_json}")
     return 0
 
 
-def _reproduce(args: argparse.Namespace) -> int:
+# -- delegated subcommands -------------------------------------------------------------
+def _reproduce(rest: list[str]) -> int:
     from atc_nf_env.experiments import reproduce
 
-    return reproduce.main(args.rest)
+    return reproduce.main(rest)
 
 
-def _train(args: argparse.Namespace) -> int:
-    from agents import train
-
-    return train.main(args.rest)
+class CommandUnavailable(Exception):
+    """A subcommand that cannot run in this install (its extra is missing)."""
 
 
-def _imitate(args: argparse.Namespace) -> int:
-    from agents import imitate
+def _plugin_commands() -> dict[str, Any]:
+    """The installed subcommands of ``COMMAND_GROUP``, by name, not loaded."""
+    from importlib.metadata import entry_points
 
-    return imitate.main(args.rest)
-
-
-#: Subcommands whose script owns its options (and its --help).
-_DELEGATED = {"reproduce": _reproduce, "train": _train, "imitate": _imitate}
+    return {ep.name: ep for ep in entry_points(group=COMMAND_GROUP) if ep.name not in CORE_COMMANDS}
 
 
+def _extra_providing(module: str | None) -> str | None:
+    """The extra of the installed atc-nf-env whose requirements hold ``module`` (by its
+    top-level name), or None."""
+    from importlib.metadata import PackageNotFoundError, requires
+
+    if not module:
+        return None
+    try:
+        requirements = requires("atc-nf-env") or []
+    except PackageNotFoundError:
+        return None
+
+    def normal(name: str) -> str:
+        return re.sub(r"[-_.]+", "-", name).lower()
+
+    wanted = normal(module.split(".")[0])
+    for requirement in requirements:
+        name = re.match(r"\s*([A-Za-z0-9][A-Za-z0-9._-]*)", requirement)
+        extra = re.search(r"extra\s*==\s*[\"']([^\"']+)[\"']", requirement)
+        if name and extra and normal(name.group(1)) == wanted:
+            return extra.group(1)
+    return None
+
+
+def _run_plugin(name: str, entry_point: Any, rest: list[str]) -> int:
+    try:
+        command: Callable[[list[str]], int] = entry_point.load()
+        return command(rest)
+    except ModuleNotFoundError as error:
+        extra = _extra_providing(error.name)
+        if extra is None:
+            raise
+        raise CommandUnavailable(
+            f"`atc-nf {name}` needs the {extra} extra: pip install 'atc-nf-env[{extra}]' "
+            f"(this install has no {error.name!r})"
+        ) from None
+
+
+# -- the parser ----------------------------------------------------------------------------
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """Shows every real default; an option without one (None, or off) says nothing."""
 
@@ -252,59 +412,60 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
-def build_parser() -> argparse.ArgumentParser:
+_OPTIONS = {"fly": _add_fly_options, "evaluate": _add_evaluate_options}
+_HANDLERS = {"fly": _fly, "evaluate": _evaluate}
+
+
+def build_parser(command: str | None = None, plugins: dict[str, Any] | None = None) -> argparse.ArgumentParser:
+    """The ``atc-nf`` parser. Only ``command``'s options are built (all the core's when
+    ``command`` is None): building them imports the simulator, which ``atc-nf --help``
+    does not need."""
     parser = argparse.ArgumentParser(
         prog="atc-nf",
         description="Aircraft under decentralized dipolar navigation functions with hidden wind.",
         formatter_class=HelpFormatter,
     )
-    sub = parser.add_subparsers(dest="command", required=True)
-    fly = sub.add_parser("fly", help="fly one episode and print its metrics", formatter_class=HelpFormatter)
-    _add_episode_options(fly)
-    fly.add_argument("--plots", type=Path,
-                     help="write trajectory and airspeed figures into this folder (created if missing)")
-    fly.add_argument("--animate", type=Path, help="write a GIF animation of the episode to this file")
-    fly.set_defaults(handler=_fly)
-
-    ev = sub.add_parser("evaluate", help="a Monte Carlo study: many seeded episodes, in parallel, resumable",
-                        formatter_class=HelpFormatter)
-    _add_episode_options(ev)
-    ev.add_argument("--runs", type=_positive_int, default=100, help="number of episodes (seeds SEED..SEED+RUNS-1)")
-    ev.add_argument("--workers", type=_positive_int, help="worker processes (default: all cores)")
-    ev.add_argument("--backend", choices=BACKENDS, default="local", help="local processes or a Ray cluster")
-    ev.add_argument("--out", type=Path, help="JSON-lines file receiving every finished run")
-    ev.add_argument("--resume", action="store_true", help="finish the study in --out, skipping runs already there")
-    ev.add_argument("--no-progress", action="store_true", help="no progress bar")
-    ev.set_defaults(handler=_evaluate)
-
-    rep = sub.add_parser("reproduce", help="the paper's figures and the reproduction table from fresh runs",
-                         add_help=False)
-    rep.set_defaults(handler=_reproduce)
-
-    tr = sub.add_parser("train", help="train a Stable-Baselines3 agent (PPO parameter-shared, or PPO/SAC centralized)",
-                        add_help=False)
-    tr.set_defaults(handler=_train)
-    im = sub.add_parser("imitate", help="imitate the MCMC-MPC: demonstrations, behaviour cloning, DAgger, "
-                        "PPO fine-tuning", add_help=False)
-    im.set_defaults(handler=_imitate)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, text in CORE_COMMANDS.items():
+        delegated = name in _DELEGATED_CORE
+        child = sub.add_parser(name, help=text, description=text, formatter_class=HelpFormatter,
+                               add_help=not delegated)
+        if not delegated and command in (None, name):
+            _OPTIONS[name](child)
+            child.set_defaults(handler=_HANDLERS[name])
+    for name, entry_point in sorted((_plugin_commands() if plugins is None else plugins).items()):
+        module = entry_point.value.split(":")[0]
+        sub.add_parser(name, help=_PLUGIN_HELP.get(name, f"from {module}; `atc-nf {name} --help` for its options"),
+                       add_help=False)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in _DELEGATED:
-        # The experiment or training script owns its options (and its --help).
-        args = argparse.Namespace(command=argv[0], handler=_DELEGATED[argv[0]], rest=argv[1:])
-    else:
-        args = parser.parse_args(argv)
+    command = argv[0] if argv else None
     try:
+        if command in _DELEGATED_CORE:
+            # The script owns its options (and its --help).
+            return _reproduce(argv[1:])
+        plugins = _plugin_commands()
+        if command in plugins:
+            return _run_plugin(command, plugins[command], argv[1:])
+        if command in _PLUGIN_HELP:
+            raise CommandUnavailable(
+                f"`atc-nf {command}` is not installed: this install of atc-nf-env declares no {COMMAND_GROUP!r} "
+                f"entry point {command!r}; reinstall it (pip install -e . in its checkout)"
+            )
+        parser = build_parser(command if command in _OPTIONS else "", plugins)
+        args = parser.parse_args(argv)
         return args.handler(args)
+    except CommandUnavailable as error:
+        print(f"atc-nf: error: {error}", file=sys.stderr)
+        return 2
     except ValueError as error:
-        print(f"atc-nf {args.command}: error: {error}", file=sys.stderr)
+        print(f"atc-nf {command}: error: {error}", file=sys.stderr)
         return 2
     except OSError as error:  # an output that cannot be written (e.g. reproduce --figures)
-        print(f"atc-nf {args.command}: error: {error}", file=sys.stderr)
+        print(f"atc-nf {command}: error: {error}", file=sys.stderr)
         return 2
 
 

@@ -358,10 +358,28 @@ def snapshots_of_recording(
 # ------------------------------------------------------------------------ animation
 
 
+def animation_formats() -> dict[str, str]:
+    """The animation files ``save_animation`` can write here, by suffix: what Pillow
+    writes as an animation (GIF, animated PNG, and WebP where Pillow has it). No video
+    format: Pillow encodes none."""
+    from PIL import features
+
+    formats = {".gif": "GIF", ".png": "animated PNG"}
+    if features.check("webp"):
+        formats[".webp"] = "animated WebP"
+    return formats
+
+
 def write_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float = 8.0, loop: int = 0) -> Path:
-    """Write frames (H, W, 3) uint8 as an animated GIF (Pillow); returns the path."""
+    """Write frames (H, W, 3) uint8 as an animation (Pillow): a GIF, or the format of
+    ``path``'s suffix among ``animation_formats()``; returns the path."""
     from PIL import Image
 
+    path = Path(path)
+    formats = animation_formats()
+    if path.suffix.lower() not in formats:
+        allowed = ", ".join(f"{suffix} ({what})" for suffix, what in formats.items())
+        raise ValueError(f"{path}: cannot write {path.suffix or 'a file without extension'}; supported: {allowed}")
     frames = list(frames)
     if not frames:
         raise ValueError("no frames to write: the animation needs at least one frame")
@@ -375,9 +393,11 @@ def write_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float = 8.0, 
             raise ValueError(f"frame {index} has shape {array.shape}; all frames must match frame 0's {frames[0].shape}")
     if not (math.isfinite(fps) and fps > 0):
         raise ValueError(f"fps = {fps!r}: must be a number > 0")
-    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    images = [Image.fromarray(np.asarray(f)).convert("P", palette=Image.Palette.ADAPTIVE) for f in frames]
+    if path.suffix.lower() == ".gif":
+        images = [Image.fromarray(np.asarray(f)).convert("P", palette=Image.Palette.ADAPTIVE) for f in frames]
+    else:  # full colour: APNG and WebP need no palette
+        images = [Image.fromarray(np.asarray(f)) for f in frames]
     images[0].save(
         path, save_all=True, append_images=images[1:], duration=int(round(1000.0 / fps)), loop=loop, optimize=False
     )
@@ -448,7 +468,8 @@ def save_animation(
 
     Args:
         source: frames, an EpisodeResult or an env (see above).
-        path: the .gif to write (folders are created).
+        path: the file to write, .gif or another of ``animation_formats()`` (folders are
+            created).
         fps: frames per second of the GIF.
         scenario: the Scenario (or its name) flown, for an EpisodeResult.
         frame_every_s: simulated seconds between frames, for an EpisodeResult.
@@ -457,11 +478,16 @@ def save_animation(
         title: title of the frames drawn from an EpisodeResult (default: scenario name).
 
     Raises:
-        ValueError: on a source of another kind, empty frames, or an EpisodeResult
-            without recording or without ``scenario``.
+        ValueError: on a source of another kind, empty frames, an EpisodeResult
+            without recording or without ``scenario``, or a suffix the writer does not
+            know (checked before any frame is drawn).
     """
     from atc_nf_env.episode import EpisodeResult
 
+    formats = animation_formats()
+    if Path(path).suffix.lower() not in formats:
+        allowed = ", ".join(f"{suffix} ({what})" for suffix, what in formats.items())
+        raise ValueError(f"{path}: cannot write {Path(path).suffix or 'a file without extension'}; supported: {allowed}")
     if isinstance(source, EpisodeResult):
         if scenario is None:
             raise ValueError("save_animation(EpisodeResult, ...) needs scenario= (the Scenario that was flown)")
@@ -499,6 +525,7 @@ def save_animation(
 
 __all__ = [
     "FrameRenderer",
+    "animation_formats",
     "HumanViewer",
     "Snapshot",
     "conflicts",

@@ -22,9 +22,9 @@ so it wraps the MCMC-MPC, the NF alone and trained agents alike (``atc-nf fly|ev
    these is safe, all flying aircraft changed together: all homing (100, 130 nm), all
    proposals turned by ±20° or ±40°; only if none of these is safe either,
    ``SAMPLED_ALTERNATIVES`` waypoint sets drawn from the MCMC-MPC's proposal distribution
-   (``mpc_settings``; by default every aircraft at 100 ± 10 nm, aimed within ±90° of the
-   line to its destination or, a quarter of the time, within ±60° of its heading; drawn
-   from the episode's seed). The closest safe alternative of the first tier that has one
+   (``atc_nf_env.proposals``, shaped by ``mpc_settings``; by default every aircraft at
+   100 ± 10 nm, aimed within ±90° of the line to its destination or, a quarter of the
+   time, within ±60° of its heading; drawn from the episode's seed). The closest safe alternative of the first tier that has one
    is applied: fewest aircraft changed, then the least total displacement of the changed
    waypoints (nm). The alternatives are predicted one world at a time in that order, in
    one compiled call (``shield_prediction``), and the first safe one is applied: the
@@ -33,14 +33,16 @@ so it wraps the MCMC-MPC, the NF alone and trained agents alike (``atc-nf fly|ev
    can all fail where every aircraft must change course a little (random traffic of six
    or more); there it finds a safe set in a fraction of a millisecond, where the MPC's
    decision takes tens;
-5. if no alternative is safe, applies the MCMC-MPC's decision (``fallback="mpc"``,
-   the policy ``mpc`` of the registry, with the filter's wind estimate), or the
-   alternative that stayed safe for the most integration steps (``fallback="least-bad"``).
+5. if no alternative is safe, applies the fallback policy's decision (``fallback="mpc"``,
+   the default: the policy ``mpc`` of the registry, ``atc_nf_env.policy.make_policy``,
+   i.e. the MCMC-MPC, with the filter's wind estimate; or any policy object given as
+   ``fallback``), or the alternative that stayed safe for the most integration steps
+   (``fallback="least-bad"``).
 
 The stall rule (``stall_progress_nm``, ``stall_periods``; on by default) keeps a policy
 from holding an aircraft short of home, which no safety check catches: an aircraft no
 closer to its destination than ``stall_periods`` periods ago is, from then on until it
-arrives, flown by the MCMC-MPC's decision (the homing waypoint with
+arrives, flown by the fallback policy's decision (the homing waypoint with
 ``fallback="least-bad"``), before the waypoint set is checked as above.
 
 The filter sees what the policy sees, the state and not the wind. Its wind estimate is
@@ -64,7 +66,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import Any, Callable, Union
 
 import numpy as np
 
@@ -82,7 +84,8 @@ from atc_nf_env.kernel import (
     S_X,
     S_Y,
 )
-from atc_nf_env.policy import Policy
+from atc_nf_env.policy import Policy, make_policy
+from atc_nf_env.proposals import PROPOSAL_FIELDS, WaypointProposal, homing_mixture_draws, inside_workspace
 from atc_nf_env.scenarios import Scenario
 from atc_nf_env.shield_prediction import (
     NONE_SAFE,
@@ -98,7 +101,11 @@ from atc_nf_env.shield_prediction import (
 from atc_nf_env.simulation import WorldView
 from atc_nf_env.units import DECISION_PERIOD_S
 
+#: The fallbacks by name: the registry's MCMC-MPC, or the alternative that stayed safe longest.
 FALLBACKS = ("mpc", "least-bad")
+#: What ``SafetyFilter(fallback=...)`` takes: a name of ``FALLBACKS``, a policy object, or a
+#: factory called once, without arguments, for one.
+Fallback = Union[str, Policy, Callable[[], Policy]]
 
 #: The filter's counts in ``episode_info()`` (prefixed so that none shadows a key of the
 #: wrapped policy, such as the MPC's ``fallbacks``).
@@ -148,13 +155,20 @@ class SafetyFilter:
             aircraft re-aimed home), periods of ``period_s``.
         envelope_margin_kt: the prediction keeps the airspeed this far inside
             [366, 540] kt, kt (the MCMC-MPC's default margin, 4 kt).
-        fallback: "mpc" (the MCMC-MPC decides when no alternative is safe) or
-            "least-bad" (the alternative that stayed safe longest).
+        fallback: who decides when no alternative is safe (and flies the aircraft the
+            stall rule hands over): "mpc" (the registry's ``make_policy("mpc",
+            **mpc_settings)``, the MCMC-MPC), "least-bad" (the alternative that stayed
+            safe longest), a policy object (reset with the filter; given the filter's wind
+            estimate through ``set_wind_estimate(wind_kt)`` if it has one), or a factory
+            called once without arguments for one.
         home_distance_nm: distance of the homing waypoint of the look-ahead period, nm.
         recovery_angle_rad: a homing waypoint turns at most this far from the heading, rad
             (a waypoint behind the aircraft commands a reverse airspeed).
         period_s: the decision period T, s.
-        mpc_settings: settings of the fallback MPC (``MPCSettings`` field names).
+        mpc_settings: settings of the "mpc" fallback (``MPCSettings`` field names); the
+            proposal's fields among them (``atc_nf_env.proposals.PROPOSAL_FIELDS``) also
+            shape the sampled tier, whatever the fallback. With another fallback, only
+            those fields are allowed.
         stall_progress_nm: the stall rule: an aircraft that came less than this much
             closer to its destination over the last ``stall_periods`` periods is flown by
             the MCMC-MPC's decision from then on until it arrives (by the homing waypoint
@@ -182,7 +196,7 @@ class SafetyFilter:
         *,
         lookahead_periods: int = 2,
         envelope_margin_kt: float = 4.0,
-        fallback: str = "mpc",
+        fallback: Fallback = "mpc",
         home_distance_nm: float = 130.0,
         recovery_angle_rad: float = math.pi / 3,
         period_s: float = DECISION_PERIOD_S,
@@ -199,24 +213,25 @@ class SafetyFilter:
             )
         if isinstance(lookahead_periods, bool) or lookahead_periods not in (1, 2):
             raise ValueError(f"lookahead_periods = {lookahead_periods!r}: allowed: 1, 2")
-        if fallback not in FALLBACKS:
-            raise ValueError(f"fallback = {fallback!r}: allowed: {', '.join(FALLBACKS)}")
+        if isinstance(fallback, str) and fallback not in FALLBACKS:
+            raise ValueError(f"fallback = {fallback!r}: allowed: {', '.join(FALLBACKS)}, a policy, or a factory of one")
         if mpc_settings is not None and not isinstance(mpc_settings, dict):
             raise TypeError(f"mpc_settings = {mpc_settings!r}: must be a dict of MPCSettings fields or None")
         self.policy = policy
         self.lookahead_periods = int(lookahead_periods)
         self.envelope_margin_kt = _finite_number("envelope_margin_kt", envelope_margin_kt, 0.0, 40.0)
-        self.fallback = fallback
         self.home_distance_nm = _finite_number("home_distance_nm", home_distance_nm, 1.0, 1000.0)
         self.recovery_angle_rad = _finite_number("recovery_angle_rad", recovery_angle_rad, 1e-6, math.pi / 2)
         self.period_s = _finite_number("period_s", period_s, 1e-9, 86400.0)
         self.mpc_settings = dict(mpc_settings or {})
-        from baselines.mcmc_mpc import MPCSettings
-
-        # The sampled tier draws from the fallback MPC's proposal distribution.
+        # The fallback first: the registry's "mpc" checks every one of mpc_settings' fields.
+        self._fallback_policy = self._make_fallback(fallback)
+        self.fallback = fallback if isinstance(fallback, str) else "policy"
+        # The sampled tier draws from the MCMC-MPC's proposal distribution.
+        proposal_settings = {k: v for k, v in self.mpc_settings.items() if k in PROPOSAL_FIELDS}
         try:
-            self._proposal = MPCSettings(**self.mpc_settings)
-        except TypeError as error:  # a key of the dict: a bad value of mpc_settings
+            self._proposal = WaypointProposal(**proposal_settings)
+        except ValueError as error:
             raise ValueError(f"mpc_settings = {self.mpc_settings!r}: {error}") from None
         self.stall_progress_nm = (
             None if stall_progress_nm is None else _finite_number("stall_progress_nm", stall_progress_nm, -1000.0, 1000.0)
@@ -225,22 +240,48 @@ class SafetyFilter:
             raise ValueError(f"stall_periods = {stall_periods!r}: must be an integer in [1, 100]")
         self.stall_periods = stall_periods
         self.name = f"{getattr(policy, 'name', type(policy).__name__)}+shield"
-        self._mpc: Policy | None = None
-        if fallback == "mpc":
-            from atc_nf_env.policy import make_policy
-
-            self._mpc = make_policy("mpc", **self.mpc_settings)
         self._params: np.ndarray | None = None
         self._scratch = kernel.KernelScratch()
         self._counts = dict.fromkeys(SHIELD_INFO_KEYS, 0)
         self._memory = DecisionMemory(0, self.stall_periods)
 
+    def _make_fallback(self, fallback: Fallback) -> Policy | None:
+        """The fallback policy of ``fallback`` (None for "least-bad")."""
+        if isinstance(fallback, str):
+            if fallback == "least-bad":
+                unused = sorted(set(self.mpc_settings) - set(PROPOSAL_FIELDS))
+                if unused:
+                    raise ValueError(
+                        f"mpc_settings {unused} apply to fallback='mpc' only; with fallback={fallback!r} the "
+                        f"sampled tier reads only {list(PROPOSAL_FIELDS)}"
+                    )
+                return None
+            return make_policy("mpc", **self.mpc_settings)  # ValueError on a setting it does not take
+        made = fallback
+        if not _is_policy(made):
+            if not callable(made):
+                raise TypeError(
+                    f"fallback is a {type(made).__name__}; expected one of {', '.join(FALLBACKS)}, an object of the "
+                    "atc_nf_env.policy.Policy interface, or a factory of one"
+                )
+            made = made()
+            if not _is_policy(made):
+                raise TypeError(f"the fallback factory returned a {type(made).__name__}, not a Policy")
+        if isinstance(made, SafetyFilter) or made is self.policy:
+            raise TypeError("fallback must be a policy of its own, neither a SafetyFilter nor the policy filtered")
+        unused = sorted(set(self.mpc_settings) - set(PROPOSAL_FIELDS))
+        if unused:
+            raise ValueError(
+                f"mpc_settings {unused} apply to fallback='mpc' only; give a fallback policy its settings itself"
+            )
+        return made
+
     # -- Policy interface -------------------------------------------------------------
     def reset(self, scenario: Scenario, config: SimConfig, seed: int | None = None) -> None:
-        """Reset the wrapped policy (and the fallback MPC) for a new episode."""
+        """Reset the wrapped policy (and the fallback policy) for a new episode."""
         self.policy.reset(scenario, config, seed)
-        if self._mpc is not None:
-            self._mpc.reset(scenario, config, seed)
+        if self._fallback_policy is not None:
+            self._fallback_policy.reset(scenario, config, seed)
         margin = min(self.envelope_margin_kt, 0.25 * (config.airspeed_max_kt - config.airspeed_min_kt))
         self._config = dataclasses.replace(
             config, airspeed_min_kt=config.airspeed_min_kt + margin, airspeed_max_kt=config.airspeed_max_kt - margin
@@ -303,15 +344,15 @@ class SafetyFilter:
         planned = memory.planned[0].copy()
         homed = verdict == SCREEN_HOMED
         if homed:
-            # The stall rule: the MCMC-MPC's decision for the aircraft handed over (the
-            # filter's wind estimate shared; the homing waypoint without an MPC), every other
+            # The stall rule: the fallback policy's decision for the aircraft handed over (the
+            # filter's wind estimate shared; the homing waypoint without one), every other
             # aircraft keeping the policy's waypoint.
             handed = np.flatnonzero(memory.homebound & flying)
-            if self._mpc is None:
+            if self._fallback_policy is None:
                 planned[handed] = self._homing(state, planned)[handed]
             else:
                 self._share_wind_estimate()
-                decided = np.asarray(self._mpc.act(view), dtype=np.float64)
+                decided = np.asarray(self._fallback_policy.act(view), dtype=np.float64)
                 planned[handed] = decided[handed]
             outcome = self._check(state, planned)
             counts["shield_homing_decisions"] += 1
@@ -339,10 +380,10 @@ class SafetyFilter:
                 counts[f"shield_{kind}_changes"] += 1
                 memory.remember(view.time_s + self.period_s, self._predictor.positions, self._predictor.alive)
                 return self._apply(proposal, ordered[index], flying)
-        if self._mpc is not None:
+        if self._fallback_policy is not None:
             counts["shield_mpc_fallbacks"] += 1
             self._share_wind_estimate()
-            applied = self._apply(proposal, np.asarray(self._mpc.act(view), dtype=np.float64), flying)
+            applied = self._apply(proposal, np.asarray(self._fallback_policy.act(view), dtype=np.float64), flying)
             survived_m, positions_m, alive_m = self._predict(state, applied[None])
             if survived_m[0] < self._full_steps():
                 counts["shield_unresolved"] += 1
@@ -466,9 +507,7 @@ class SafetyFilter:
 
     def _sampled(self, view: WorldView, planned: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``SAMPLED_ALTERNATIVES`` waypoint sets (M, N, 2) from the MCMC-MPC's proposal
-        distribution (its ``MPCSettings``), every flying aircraft changed, and (M, N) which."""
-        from baselines.mcmc_mpc import homing_mixture_draws, inside_workspace
-
+        distribution (``WaypointProposal``), every flying aircraft changed, and (M, N) which."""
         settings, flying, state = self._proposal, view.flying, view.state
         position = state[:, S_X : S_Y + 1]
         to_dest = state[:, S_DEST_X : S_DEST_Y + 1] - position
@@ -483,11 +522,15 @@ class SafetyFilter:
                                                                                    axis=0)
 
     def _share_wind_estimate(self) -> None:
-        """Hand the filter's wind estimate to the fallback MPC, which is not called every
+        """Hand the filter's wind estimate to the fallback policy, which is not called every
         period and so cannot keep an estimate of its own."""
-        setter = getattr(self._mpc, "set_wind_estimate", None)
+        setter = getattr(self._fallback_policy, "set_wind_estimate", None)
         if callable(setter):
             setter(self._memory.wind_kt.copy())
+
+
+def _is_policy(candidate: Any) -> bool:
+    return callable(getattr(candidate, "act", None)) and callable(getattr(candidate, "reset", None))
 
 
 def summarize_interventions(infos: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -508,5 +551,5 @@ def summarize_interventions(infos: list[dict[str, Any]]) -> dict[str, Any] | Non
     }
 
 
-__all__ = ["ALTERNATIVE_KINDS", "FALLBACKS", "SAMPLED_ALTERNATIVES", "SHIELD_INFO_KEYS", "SafetyFilter",
+__all__ = ["ALTERNATIVE_KINDS", "FALLBACKS", "Fallback", "SAMPLED_ALTERNATIVES", "SHIELD_INFO_KEYS", "SafetyFilter",
            "summarize_interventions"]

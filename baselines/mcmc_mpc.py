@@ -174,6 +174,9 @@ from atc_nf_env.kernel import (
     S_X,
     S_Y,
 )
+# The proposal's draws live in the core, which the safety filter's sampled tier shares;
+# re-exported here, where they were first defined.
+from atc_nf_env.proposals import homing_mixture_draws, inside_workspace
 from atc_nf_env.scenarios import Scenario
 from atc_nf_env.simulation import WorldView
 from atc_nf_env.units import AIRSPEED_NOMINAL_KT, DECISION_PERIOD_S, KT_PER_MPS, SECONDS_PER_HOUR, WIND_SIGMA_MPS
@@ -198,7 +201,35 @@ _COST_FLOOR_NM = 1e-9
 
 @dataclass(frozen=True)
 class MPCSettings:
-    """Settings of the MCMC-MPC; the defaults are the paper's (Table I, section IV).
+    """Settings of the MCMC-MPC.
+
+    The defaults are this project's controller, not the paper's: Table I's sampler with
+    the paper's K = 1000, N = 4, T = 5 min and distance N(100 nm, 10 nm) (section IV-C),
+    under the default ``proposal="homing"``, which adds to Table I
+
+    - the chain's start Θ_0: every aircraft aimed at its destination,
+      ``home_distance_nm`` (130 nm) out, turned at most ``recovery_angle_rad`` from its
+      heading (Table I leaves the start free; "paper" starts from the first draw);
+    - a mixture proposal: with probability ``recovery_fraction`` (0.25) an aircraft's
+      angle is uniform within ±``recovery_angle_rad`` (60°) of its heading instead of
+      within ±``angle_range_rad`` (90°) of the line to its destination;
+    - a cost term: each aircraft's time flown in the horizon, as distance at 454 kt, is
+      added to (6)'s remaining distances;
+    - envelope margins: the prediction holds the airspeed 4 kt inside [366, 540] kt
+      (``HOMING_ENVELOPE_MARGIN_KT``), 10 kt at an episode's first decision
+      (``HOMING_FIRST_DECISION_MARGIN_KT``) ("paper": 0 kt);
+    - wider rounds: up to ``search_rounds`` (2) more rounds of K candidates, each wider,
+      before a fallback ("paper": none).
+
+    ``proposal="paper"`` (CLI ``--proposal paper``) is Table I's proposal, chain start and
+    cost (6) as printed. Under either proposal three defaults are not the paper's either:
+    ``constraint_check="every-step"`` (the paper checks at the sampling instants t + pT:
+    ``"sampling-instants"``), ``acceptance="standard"`` (Table I prints the proposal
+    ratio the other way up: ``"table-i"``) and ``wind_model="estimated"`` (the paper
+    does not say what wind its prediction assumes; ``"none"`` predicts still air, the
+    forecast the paper sets to zero). ``MPCSettings(proposal="paper",
+    constraint_check="sampling-instants", acceptance="table-i", wind_model="none")`` comes
+    closest to Table I and section III as printed.
 
     Attributes:
         period_s: T, the sampling period, s.
@@ -294,45 +325,6 @@ class MPCSettings:
 def _wrap(angle: np.ndarray) -> np.ndarray:
     """Angles wrapped to [−π, π), rad."""
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def inside_workspace(waypoints: np.ndarray, limit_nm: float) -> np.ndarray:
-    """Waypoints (..., 2) nm pulled toward the centre to within ``limit_nm`` of it, in place;
-    returns them. (The safety filter's compiled alternatives use the scalar counterpart,
-    ``atc_nf_env.shield_prediction._inside``.)"""
-    radius = np.hypot(waypoints[..., 0], waypoints[..., 1])
-    waypoints *= np.minimum(1.0, limit_nm / np.maximum(radius, 1e-12))[..., None]
-    return waypoints
-
-
-def homing_mixture_draws(
-    rng: np.random.Generator,
-    settings: MPCSettings,
-    heading: np.ndarray,
-    bearing: np.ndarray,
-    count: int,
-    heading_share: float,
-    distance_std_nm: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """``count`` draws of the "homing" proposal's waypoints of N aircraft: directions (count,
-    N) rad and distances (count, N) nm.
-
-    Per aircraft, a mixture: with probability ``heading_share`` an angle uniform in
-    ±``settings.recovery_angle_rad`` around its heading (N,) rad, otherwise uniform in
-    ±``settings.angle_range_rad`` around its bearing (N,) rad to the destination; the
-    distance is normal around ``settings.distance_mean_nm`` with ``distance_std_nm``. The
-    MCMC-MPC draws its candidates from it, and the safety filter its sampled alternatives.
-    """
-    n = heading.shape[0]
-    distance = rng.normal(settings.distance_mean_nm, distance_std_nm, (count, n))
-    around_heading = rng.random((count, n)) < heading_share
-    angle = rng.uniform(-1.0, 1.0, (count, n))
-    direction = np.where(
-        around_heading,
-        heading[None, :] + settings.recovery_angle_rad * angle,
-        bearing[None, :] + settings.angle_range_rad * angle,
-    )
-    return direction, distance
 
 
 @dataclass
@@ -578,6 +570,9 @@ class MCMCMPC:
             "fallbacks_breach_predicted": int(sum(d.applied_breach_predicted for d in self.decisions)),
             "wider_searches": int(sum(d.rounds > 1 for d in self.decisions)),
             "rescued_by_wider_search": int(sum(d.rounds > 1 and not d.fallback for d in self.decisions)),
+            # Decisions whose chain accepted no move: they apply the chain's start (under
+            # "homing" every aircraft aimed home, under "paper" the first draw).
+            "start_kept": int(sum(not d.fallback and d.chain_acceptance == 0.0 for d in self.decisions)),
             "feasible_fraction": {
                 "min": float(min(fractions)) if fractions else None,
                 "mean": float(np.mean(fractions)) if fractions else None,

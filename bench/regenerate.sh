@@ -7,7 +7,7 @@
 # tables' timings are measured as they are written. Logs: out/regenerate/NN-name.log.
 #
 #   bash bench/regenerate.sh            # everything (about 45 min on 2 cores)
-#   bash bench/regenerate.sh studies    # REPRODUCTION.md, README.md, agents/README.md, cards
+#   bash bench/regenerate.sh studies    # REPRODUCTION.md, docs/figures, README.md, agents/README.md, cards
 #   bash bench/regenerate.sh benchmarks # BENCHMARKS.md
 #   FROM=2 bash bench/regenerate.sh     # from the second command on (after a failure)
 set -euo pipefail
@@ -57,7 +57,7 @@ benchmark() {  # benchmark NAME ARGS...: python -m agents.benchmark ARGS --no-pr
 }
 
 if [[ $WHAT == all || $WHAT == studies ]]; then
-    run reproduce "$ATC_NF" reproduce --runs 1000
+    run reproduce "$ATC_NF" reproduce --runs 1000 --write
     benchmark agents-vs-mpc --models agents/models/imitation_bc.zip,agents/models/imitation_dagger.zip,agents/models/finetuned_ppo.zip --runs 300 --workers 2 --reuse-mpc out/reproduction --summary agents/results/summary.json --table agents/results/table.md --write-section 'agents/README.md#agents-vs-mpc'
     benchmark scratch-ppo --models agents/models/scratch_ppo.zip --baselines '' --runs 300 --workers 2 --out out/agents_scratch --summary agents/results/scratch_ppo_summary.json --table agents/results/scratch_ppo_table.md --write-section 'agents/README.md#scratch-ppo'
     benchmark deepsets --models agents/models/deepsets_mixed.zip --baselines '' --runs 300 --workers 2 --scenarios converging-3,converging-4,converging-5,converging-6,converging-7,converging-8,converging-12,converging-16,random-4,random-5,random-6,random-7,random-8,random-16 --out out/agents_deepsets --summary agents/results/deepsets_summary.json --table agents/results/deepsets_table.md --write-section 'agents/README.md#deepsets'

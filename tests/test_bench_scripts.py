@@ -1,4 +1,4 @@
-"""Every script under ``bench/`` parses: the benchmarks and experiments are run by hand or by
+"""Every script under ``bench/`` parses: the benchmarks and studies are run by hand or by
 ``bench/regenerate.sh`` long after a change, so a syntax error would otherwise surface only
 there (a quoted section name once left ``bench/bench_kernel.py`` unparsable)."""
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -206,7 +207,12 @@ def test_cli_fly_writes_summary_and_plots(tmp_path, capsys) -> None:
     )
     assert code == 0
     out = capsys.readouterr().out
-    assert "converging-3" in out and "arrived 3/3" in out
+    assert "nf on converging-3, seed 0" in out
+    assert re.search(r"^all\s+3/3\s", out, re.MULTILINE)
+    for aircraft in range(3):
+        assert re.search(rf"^{aircraft}\s+yes\s+\d+\.\d\s+\d+\s", out, re.MULTILINE), out
+    # For people: no Python dicts, no None, no 16-digit floats; the JSON went to the file.
+    assert "{" not in out and "None" not in out and not re.search(r"\d\.\d{5,}", out)
 
     summary = json.loads(summary_path.read_text())
     for key in (
@@ -395,3 +401,63 @@ def test_cli_fly_writes_an_animation(tmp_path) -> None:
 
     with Image.open(gif) as image:
         assert image.n_frames >= 10
+
+
+def test_cli_fly_refuses_an_animation_format_before_flying(tmp_path, capsys, monkeypatch) -> None:
+    import atc_nf_env.episode as episode
+
+    def never(*args, **kwargs):
+        raise AssertionError("flew before checking the arguments")
+
+    monkeypatch.setattr(episode, "run_episode", never)
+    monkeypatch.setattr(episode, "warm_up", never)
+    for name in ("x.mp4", "x.txt", "x"):
+        assert main(["fly", "--policy", "nf", "--animate", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err
+        assert "--animate" in err and "supported: .gif (GIF), .png (animated PNG)" in err, err
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("minutes", ["0.1", "7.01"])
+def test_cli_refuses_a_time_limit_off_the_step_grid_in_minutes(minutes, capsys) -> None:
+    assert main(["fly", "--policy", "nf", "--max-minutes", minutes]) == 2
+    err = capsys.readouterr().err
+    assert f"--max-minutes {minutes}:" in err and "min" in err and "max_time_s" not in err
+    assert "0.1" not in minutes or "e.g. 0.08333 or 0.1667" in err
+
+
+@pytest.mark.parametrize("minutes", ["0", "-5", "nan", "inf"])
+def test_cli_refuses_a_time_limit_that_is_not_positive(minutes, capsys) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        main(["fly", "--policy", "nf", "--max-minutes", minutes])
+    assert exit_.value.code == 2
+    assert "--max-minutes" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("suffix", [".png", ".webp"])
+def test_cli_fly_writes_the_other_animation_formats(tmp_path, suffix) -> None:
+    from atc_nf_env.rendering import animation_formats
+
+    if suffix not in animation_formats():
+        pytest.skip(f"this Pillow writes no {suffix}")
+    target = tmp_path / f"episode{suffix}"
+    assert main(["fly", "--policy", "nf", "--scenario", "converging-3", "--wind-sigma", "0",
+                 "--max-minutes", "20", "--animate", str(target)]) == 0
+    from PIL import Image
+
+    with Image.open(target) as image:
+        assert image.n_frames >= 10
+
+
+def test_per_aircraft_closest_approach_matches_the_run_s_minimum(calm_pair) -> None:
+    from atc_nf_env.tables import per_aircraft
+
+    _, runs = calm_pair
+    result = runs[0]
+    closest, low, high = per_aircraft(result)
+    m = result.metrics
+    # The kernel also looks between a refined step's sub-steps: never above the step ends'.
+    assert m.min_separation_nm <= closest.min() + 1e-9
+    assert closest.min() == pytest.approx(m.min_separation_nm, abs=0.5)
+    assert low.min() == m.airspeed_min_kt and high.max() == m.airspeed_max_kt
+    assert (low <= high).all()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -109,6 +110,18 @@ def test_cli_evaluate_writes_the_summary_contract(tmp_path, capsys):
     assert summary["runs"] == 3
     assert summary["decision_s"]["mean"] > 0
     assert summary["peak_rss_mb"] > 10
+    # On the terminal, a table for people, not the JSON.
+    out = capsys.readouterr().out
+    assert "{" not in out and "None" not in out
+    assert "mpc (extractions 60) on converging-3, wind σ 5.17 m/s, seeds 0–2" in out
+    home = round(summary["success_rate"] * 3)
+    assert f"every aircraft home    {home}/3" in out
+    assert f"fallbacks              {summary['fallbacks']} of {summary['decisions']} decisions" in out
+    safe = re.search(r"safe runs +(\d)/3 \(no loss of separation, no step outside \[366, 540\] kt\)", out)
+    assert safe is not None, out
+    unsafe_at_least = max(summary["runs_with_los"], summary["runs_with_envelope_violation"])
+    unsafe_at_most = summary["runs_with_los"] + summary["runs_with_envelope_violation"]
+    assert 3 - unsafe_at_most <= int(safe.group(1)) <= 3 - unsafe_at_least
 
 
 def test_cli_rejects_bad_values(capsys):

@@ -183,7 +183,9 @@ def test_cli_refuses_a_time_limit_off_the_grid_at_once(command, minutes, capsys,
     with deadline(60):
         code = main([command, "--policy", "nf", "--max-minutes", minutes, *extra])
     assert code == 2
-    assert "max_time_s" in capsys.readouterr().err
+    # In the option's own units: minutes, not the seconds of max_time_s.
+    err = capsys.readouterr().err
+    assert f"--max-minutes {float(minutes):g}:" in err and "whole integration steps of 5 s (0.08333 min)" in err
 
 
 @pytest.mark.parametrize("flag", ["--summary-json", "--plots", "--animate"])

@@ -224,7 +224,7 @@ def test_fly_summary_has_fallbacks_once_and_only_for_the_mpc(tmp_path, capsys) -
     assert "fallbacks" not in summaries["mpc"]["policy_info"]
     for s in summaries.values():
         assert s["compile_s"] > 0 and s["wall_s_per_run"]["mean"] > 0
-    assert "times above are warm" in capsys.readouterr().out
+    assert "warm-up before it (compiling or loading the simulator" in capsys.readouterr().out
 
 
 def test_bare_fly_flies_the_reference_mpc(capsys, monkeypatch) -> None:

@@ -1,5 +1,6 @@
 """The reproduction's machinery: build fingerprints, every-step airspeed bands, derived
-report cells, marked sections, and the README's summary equal to REPRODUCTION.md's."""
+report cells, marked sections, where the report is written (out/ unless --write), and
+the controller it names."""
 
 from __future__ import annotations
 
@@ -14,7 +15,6 @@ from atc_nf_env.evaluate import Study, evaluate, read_results, run_one
 from atc_nf_env.experiments import reproduce
 from atc_nf_env.experiments.marked_sections import marked_sections, replace_marked_section
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_fingerprint_is_stable_and_covers_the_kernel_and_baselines() -> None:
@@ -119,16 +119,10 @@ def test_report_cells_are_counted_from_the_runs() -> None:
     assert reproduce.arrival_note(reproduce.run_safety([_record(0)])) == ""
 
 
-def test_marked_blocks_survive_and_the_readme_block_is_replaced(tmp_path: Path) -> None:
+def test_marked_blocks_are_found() -> None:
     text = "head\n<!-- begin proximity-range -->\n| a | b |\n<!-- end proximity-range -->\ntail\n"
     assert marked_sections(text) == {
         "proximity-range": "<!-- begin proximity-range -->\n| a | b |\n<!-- end proximity-range -->"}
-    readme = tmp_path / "README.md"
-    readme.write_text("x\n<!-- begin reproduction-summary -->\nold\n<!-- end reproduction-summary -->\ny\n")
-    assert reproduce.update_readme(readme, "new figures")
-    assert readme.read_text() == "x\n<!-- begin reproduction-summary -->\nnew figures\n" \
-                                 "<!-- end reproduction-summary -->\ny\n"
-    assert not reproduce.update_readme(tmp_path / "missing.md", "z")
 
 
 
@@ -146,30 +140,77 @@ def test_mpc_rows_quote_the_runs_and_the_papers_figures() -> None:
     assert all(paper == "-" for _, paper, _, _ in random_rows)
 
 
-def test_reproduce_end_to_end_keeps_marked_sections_and_fills_the_readme(tmp_path: Path) -> None:
-    report, readme = tmp_path / "REPRODUCTION.md", tmp_path / "README.md"
+def test_reproduce_end_to_end_keeps_marked_sections(tmp_path: Path) -> None:
+    report = tmp_path / "REPRODUCTION.md"
     kept = "<!-- begin proximity-range -->\n| range | separation |\n<!-- end proximity-range -->"
     report.write_text(f"# old table\n\n| stale | 921/1000 |\n\n{kept}\n")
-    readme.write_text("# x\n\n<!-- begin reproduction-summary -->\nstale\n<!-- end reproduction-summary -->\n")
     assert reproduce.main(["--runs", "1", "--nf-wind-runs", "1", "--workers", "1", "--no-progress",
                            "--out", str(tmp_path / "out"), "--figures", str(tmp_path / "fig"),
-                           "--report", str(report), "--readme", str(readme)]) == 0
+                           "--report", str(report)]) == 0
     text = report.read_text()
     assert "921/1000" not in text and text.count(kept) == 1
     assert "atc-nf reproduce --runs 1 --nf-wind-runs 1" in text and build.fingerprint() in text
+    assert reproduce.HEADLINE_CONTROLLER in text
     for scenario in reproduce.MPC_STUDIES:
         assert f"| {scenario}, MPC under wind: runs where every aircraft arrives |" in text
-    summary = text.split("## In short\n\n", 1)[1].split("\n\n", 1)[0]
-    assert f"<!-- begin reproduction-summary -->\n{summary}\n<!-- end reproduction-summary -->" in readme.read_text()
+    for scenario in reproduce.PAPER_PROPOSAL_STUDIES:
+        prefix = f"| {scenario}, MPC with Table I's proposal (`--proposal paper`) under wind:"
+        assert f"{prefix} runs where every aircraft arrives |" in text
+        assert f"{prefix} decisions that apply the chain's start without an accepted move | - |" in text
+    assert "R = 1 for converging-6 with Table I's proposal" in text
     assert {p.name for p in (tmp_path / "fig").iterdir()} >= {
         "mpc_converging4_airspeed_bands.png", "mpc_converging6_airspeed_bands.png"}
+    results = json.loads((tmp_path / "out" / "reproduction.json").read_text())
+    for scenario in reproduce.PAPER_PROPOSAL_STUDIES:
+        header, runs = read_results(tmp_path / "out" / f"mpc_paper_{scenario.replace('-', '')}.jsonl")
+        assert header["policy_kwargs"] == {"proposal": "paper"}
+        kept_starts = sum(r["policy_info"]["start_kept"] for r in runs)
+        assert results["paper_safety"][scenario]["decisions_start_kept"] == kept_starts
+        assert 0 <= kept_starts <= results["paper_safety"][scenario]["decisions"]
 
 
-def test_readme_results_equal_the_reproduction_summary() -> None:
-    report = (ROOT / "REPRODUCTION.md").read_text()
-    summary = report.split("## In short\n\n", 1)[1].split("\n\n", 1)[0]
-    block = marked_sections((ROOT / "README.md").read_text())[reproduce.SUMMARY_BLOCK]
-    assert block == f"<!-- begin {reproduce.SUMMARY_BLOCK} -->\n{summary}\n<!-- end {reproduce.SUMMARY_BLOCK} -->"
+def test_reproduce_writes_into_out_unless_told_to_write(tmp_path: Path, monkeypatch) -> None:
+    """By default nothing tracked is touched: the report and figures go under --out."""
+    monkeypatch.chdir(tmp_path)
+    for name in ("REPRODUCTION.md", "README.md"):
+        (tmp_path / name).write_text("tracked\n")
+    args = ["--runs", "1", "--nf-wind-runs", "1", "--workers", "1", "--no-progress"]
+    assert reproduce.main(args) == 0
+    assert (tmp_path / "REPRODUCTION.md").read_text() == (tmp_path / "README.md").read_text() == "tracked\n"
+    assert not (tmp_path / "docs").exists()
+    out = tmp_path / "out" / "reproduction"
+    assert "# Reproduction of the paper's section IV" in (out / "REPRODUCTION.md").read_text()
+    assert (out / "figures" / "mpc_converging4_airspeed_bands.png").is_file()
+    # --write: the tracked report and docs/figures/ (the runs are reused: nothing flies again).
+    assert reproduce.main(args + ["--write"]) == 0
+    text = (tmp_path / "REPRODUCTION.md").read_text()
+    assert "atc-nf reproduce --runs 1 --nf-wind-runs 1 --write" in text and "`docs/figures/`" in text
+    assert (tmp_path / "docs" / "figures" / "mpc_converging6_airspeed_bands.png").is_file()
+    assert (tmp_path / "README.md").read_text() == "tracked\n"
+
+
+def test_the_named_controller_is_the_default_one() -> None:
+    """Each addition that the report names is what ``MPCSettings()`` flies."""
+    import math
+
+    from baselines import MCMCMPC, MPCSettings
+
+    s = MPCSettings()
+    assert (s.proposal, s.extractions, s.horizon, s.period_s) == ("homing", 1000, 4, 300.0)
+    assert (s.distance_mean_nm, s.distance_std_nm, s.home_distance_nm) == (100.0, 10.0, 130.0)
+    assert s.recovery_fraction == 0.25 and math.isclose(math.degrees(s.recovery_angle_rad), 60.0)
+    assert math.isclose(math.degrees(s.angle_range_rad), 90.0)
+    mpc = MCMCMPC()
+    assert (mpc.envelope_margin_kt, mpc.first_decision_margin_kt) == (4.0, 10.0)
+    assert s.search_rounds == 2
+    assert (s.constraint_check, s.acceptance, s.wind_model) == ("every-step", "standard", "estimated")
+    paper = MCMCMPC(proposal="paper")
+    assert (paper.envelope_margin_kt, paper.first_decision_margin_kt) == (0.0, 0.0)
+    for words in ("130 nm out", "a quarter of the angles", "±60° of the heading", "±90° of the line home",
+                  "time flown in the horizon", "454 kt", "4 kt inside the envelope", "10 kt at an episode's first",
+                  "2 wider rounds", "every integration step", "standard independence sampler",
+                  "estimated from the observed drift", "K = 1000", "N = 4", "T = 5 min"):
+        assert words in reproduce.HEADLINE_CONTROLLER, words
 
 
 def test_a_section_is_replaced_only_between_its_own_markers() -> None:

@@ -130,6 +130,53 @@ def test_with_no_safe_alternative_the_mpc_decides_deterministically_and_is_count
     assert results[0].metrics.worst_excursion_kt == 0.0
 
 
+def test_an_injected_fallback_policy_decides_as_the_registry_s_mpc_does():
+    """``fallback`` takes a policy object or a factory of one; the default ("mpc") is the
+    registry's MCMC-MPC, so giving that same policy changes nothing, bit for bit."""
+    from atc_nf_env.policy import make_policy
+
+    scenario = make_scenario("converging-3")
+    by_name = NoAlternatives(Behind(), mpc_settings={"extractions": 64})
+    reference = run_episode(by_name, scenario, seed=3, max_time_s=600)
+    for fallback in (make_policy("mpc", extractions=64), lambda: make_policy("mpc", extractions=64)):
+        injected = NoAlternatives(Behind(), fallback=fallback)
+        result = run_episode(injected, scenario, seed=3, max_time_s=600)
+        assert injected.fallback == "policy"
+        assert np.array_equal(result.records, reference.records)
+        assert np.array_equal(result.waypoints, reference.waypoints)
+        assert injected.episode_info()["shield_mpc_fallbacks"] == by_name.episode_info()["shield_mpc_fallbacks"] == 2
+
+
+def test_a_bad_fallback_is_refused_with_what_is_allowed():
+    with pytest.raises(TypeError, match="least-bad.*Policy interface"):
+        SafetyFilter(AimThrough(), fallback=42)
+    with pytest.raises(TypeError, match="factory returned a int"):
+        SafetyFilter(AimThrough(), fallback=lambda: 42)
+    with pytest.raises(TypeError, match="neither a SafetyFilter nor the policy filtered"):
+        policy = AimThrough()
+        SafetyFilter(policy, fallback=policy)
+    # Settings of the MPC fallback with another fallback: refused, not silently ignored.
+    with pytest.raises(ValueError, match=r"\['extractions'\] apply to fallback='mpc' only"):
+        SafetyFilter(AimThrough(), fallback="least-bad", mpc_settings={"extractions": 10})
+    with pytest.raises(ValueError, match=r"\['extractions'\] apply to fallback='mpc' only"):
+        SafetyFilter(AimThrough(), fallback=AimThrough(), mpc_settings={"extractions": 10})
+    # The sampled tier's proposal fields are checked whatever the fallback.
+    with pytest.raises(ValueError, match="distance_std_nm"):
+        SafetyFilter(AimThrough(), fallback="least-bad", mpc_settings={"distance_std_nm": -1.0})
+    SafetyFilter(AimThrough(), fallback="least-bad", mpc_settings={"distance_std_nm": 20.0})  # accepted
+
+
+def test_the_sampled_tier_s_proposal_defaults_are_the_mpc_s():
+    import dataclasses
+
+    from atc_nf_env.proposals import WaypointProposal
+    from baselines import MPCSettings
+
+    mpc = MPCSettings()
+    for field in dataclasses.fields(WaypointProposal):
+        assert getattr(WaypointProposal(), field.name) == getattr(mpc, field.name), field.name
+
+
 def test_episode_info_keeps_its_keys_and_never_shadows_the_policy_s():
     from baselines import MCMCMPC
 
@@ -198,7 +245,7 @@ def test_study_and_cli_count_interventions(tmp_path, capsys):
     written = json.loads(out.read_text())
     assert written["shield"]["decisions"] == 2
     assert set(SHIELD_INFO_KEYS) <= set(written["policy_info"])
-    assert "shield_decisions 2" in capsys.readouterr().out
+    assert "safety filter: 2 decisions" in capsys.readouterr().out
 
 
 def test_summarize_interventions():

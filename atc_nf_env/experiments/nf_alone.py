@@ -24,9 +24,9 @@ import numpy as np
 from atc_nf_env.episode import EpisodeResult, run_episode
 from atc_nf_env.kernel import R_FLEW, R_X, R_Y
 from atc_nf_env.plotting import plot_airspeed, plot_trajectories
+from atc_nf_env.policy import make_policy
 from atc_nf_env.scenarios import converging
 from atc_nf_env.units import WIND_SIGMA_MPS
-from baselines import NFDirect
 
 
 def closest_approach_to_centre_nm(result: EpisodeResult) -> np.ndarray:
@@ -39,7 +39,7 @@ def closest_approach_to_centre_nm(result: EpisodeResult) -> np.ndarray:
 
 
 def windless(n: int, out: Path | None) -> tuple[dict[str, Any], EpisodeResult]:
-    result = run_episode(NFDirect(), converging(n), seed=0, wind_sigma_mps=0.0, record_every=1)
+    result = run_episode(make_policy("nf"), converging(n), seed=0, wind_sigma_mps=0.0, record_every=1)
     m = result.metrics
     last_minutes = result.records[-1]  # airspeed on the final approach
     summary = {
@@ -67,7 +67,7 @@ def windy(runs: int, out: Path | None) -> dict[str, Any]:
     failed_runs, stall_distances, los_runs = 0, [], 0
     example = None
     for seed in range(runs):
-        result = run_episode(NFDirect(), scenario, seed=seed, wind_sigma_mps=WIND_SIGMA_MPS, record_every=40)
+        result = run_episode(make_policy("nf"), scenario, seed=seed, wind_sigma_mps=WIND_SIGMA_MPS, record_every=40)
         m = result.metrics
         los_runs += m.los_count > 0
         if m.success:

@@ -4,11 +4,11 @@ G_i (``atc_nf_env.nf``) senses neighbours within ``sensing_radius_nm`` and repel
 like a log barrier within ``barrier_nm``. The paper's reference [13] leaves both open.
 For each range this study flies:
 
-- the NF alone (``NFDirect``) without wind, converging-4 and converging-6: minimum
+- the NF alone (the policy ``nf``) without wind, converging-4 and converging-6: minimum
   separation (paper: 22 nm for 4 aircraft) and losses of separation; for 6 aircraft
   the roundabout radius, each aircraft's closest approach to the centre averaged over
   the aircraft (paper: about 190 nm);
-- the MPC (``MCMCMPC`` with its defaults; searched exhaustively, which flies the same
+- the MPC (the policy ``mpc``, the MCMC-MPC, with its defaults; searched exhaustively, which flies the same
   episodes and measures every decision's feasible fraction) on converging-4 under wind σ = 5.17 m/s,
   ``--runs`` seeded runs (seeds 0 … runs − 1): per-run minimum separation (paper:
   11.5-16 nm), runs with every aircraft home, runs with a loss of separation, runs
@@ -33,9 +33,9 @@ from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import run_episode
 from atc_nf_env.experiments.marked_sections import write_marked_section
 from atc_nf_env.experiments.nf_alone import closest_approach_to_centre_nm
+from atc_nf_env.policy import make_policy
 from atc_nf_env.scenarios import converging
 from atc_nf_env.units import WIND_SIGMA_MPS
-from baselines import MCMCMPC, NFDirect
 
 #: (sensing radius, barrier distance), nm, centre to centre.
 RANGES_NM: tuple[tuple[float, float], ...] = (
@@ -51,7 +51,7 @@ SECTION = "proximity-range"
 
 def nf_alone(config: SimConfig, n: int) -> dict[str, Any]:
     """The NF alone on converging-n without wind."""
-    result = run_episode(NFDirect(), converging(n), seed=0, wind_kt=np.zeros(2), config=config, record_every=1)
+    result = run_episode(make_policy("nf"), converging(n), seed=0, wind_kt=np.zeros(2), config=config, record_every=1)
     m = result.metrics
     return {
         "min_separation_nm": float(m.min_separation_nm),
@@ -65,7 +65,7 @@ def mpc(config: SimConfig, runs: int, n: int = 4) -> dict[str, Any]:
     """The MPC on converging-n under the paper's wind, seeds 0 … runs − 1."""
     seps, home, los, breach, fallbacks, feasible = [], 0, 0, 0, 0, []
     for seed in range(runs):
-        policy = MCMCMPC(search="exhaustive")  # the same flights, and every decision's feasible fraction
+        policy = make_policy("mpc", search="exhaustive")  # the same flights, and every decision's feasible fraction
         m = run_episode(policy, converging(n), seed=seed, wind_sigma_mps=WIND_SIGMA_MPS, config=config).metrics
         info = policy.episode_info()
         seps.append(float(m.min_separation_nm))
