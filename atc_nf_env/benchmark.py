@@ -1,0 +1,293 @@
+"""The benchmark: a versioned suite of named tasks with seed splits, and score cards.
+
+A *task* is a scenario family flown under the paper's hidden wind (σ = 5.17 m/s) with a
+time limit. Every task has three disjoint seed *splits*:
+
+========== ====================================== ==========================================
+split      seeds                                  use
+========== ====================================== ==========================================
+train      0 … 999 999 999                        training, tuning, any development run
+validation 1 000 000 000 … 1 000 009 999          model selection, early stopping
+test       2 000 000 000 … 2 000 009 999          the figures you publish; never tune on them
+========== ====================================== ==========================================
+
+Every seed fixes the encounter's layout (random families), the hidden wind and the
+policy's randomness, so two policies scored on one split face the same encounters.
+Seeds 0 … 999 999 999 hold every seed the project's own development used (the safety
+filter's tuning on 0 … 999, the agents' training at 10 000 and up, held-out checks at
+770 000 and 880 000); the validation and test ranges were touched by none of it.
+
+A *score card* (``score_card``) is one policy on one task and split: runs, runs home
+(every aircraft arrived), runs safe (no loss of separation and no integration step
+outside [366, 540] kt — per run, not a share of steps), flight time and its ratio to the
+reference MPC on the same seeds, decision time, and one ``score`` that orders policies
+safety first (see ``lexicographic_score``).
+
+    python -m atc_nf_env.benchmark --policy nf --task converging-4 --split validation --runs 20 --out card.json
+
+The suite is versioned (``SUITE_VERSION``): a change to a task, a split or the score
+makes a new version, and every card names the version it was scored on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+from atc_nf_env.units import AIRSPEED_MAX_KT, AIRSPEED_MIN_KT, WIND_SIGMA_MPS
+
+#: The suite's version: cards of different versions are not comparable.
+SUITE_VERSION = "v0"
+
+
+@dataclass(frozen=True)
+class Task:
+    """One benchmark task: a scenario family under the paper's wind, with a time limit."""
+
+    name: str
+    scenario: str
+    wind_sigma_mps: float = WIND_SIGMA_MPS
+    #: The episode's time limit, s (the evaluator's default: 3 h).
+    max_time_s: float = 3 * 3600.0
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class Split:
+    """A range of seeds: ``first`` … ``first + size − 1``."""
+
+    name: str
+    first: int
+    size: int
+
+    def seeds(self, runs: int) -> range:
+        """The split's first ``runs`` seeds (ValueError when it has fewer)."""
+        if isinstance(runs, bool) or not isinstance(runs, int) or not 1 <= runs <= self.size:
+            raise ValueError(f"runs = {runs!r}: the {self.name} split has {self.size} seeds; give 1 … {self.size}")
+        return range(self.first, self.first + runs)
+
+
+TASKS: dict[str, Task] = {
+    task.name: task
+    for task in (
+        Task("converging-4", "converging-4", description="the paper's 4-aircraft encounter (Section IV-D.1)"),
+        Task("converging-6", "converging-6", description="the paper's 6-aircraft encounter (Section IV-D.2)"),
+        Task("random-4", "random-4", description="4 aircraft, random starts and destinations"),
+        Task("random-6", "random-6", description="6 aircraft, random starts and destinations"),
+        Task("random-8", "random-8", description="8 aircraft, random starts and destinations"),
+    )
+}
+
+SPLITS: dict[str, Split] = {
+    split.name: split
+    for split in (
+        Split("train", 0, 1_000_000_000),
+        Split("validation", 1_000_000_000, 10_000),
+        Split("test", 2_000_000_000, 10_000),
+    )
+}
+
+#: Splits a score card may be computed on (training seeds score nothing).
+SCORED_SPLITS: tuple[str, ...] = ("validation", "test")
+
+
+def get_task(name: str) -> Task:
+    """The task called ``name`` (ValueError listing the suite's tasks otherwise)."""
+    try:
+        return TASKS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"task = {name!r}: the {SUITE_VERSION} suite has {', '.join(TASKS)}") from None
+
+
+def get_split(name: str, *, scored: bool = True) -> Split:
+    """The split called ``name``; with ``scored``, only those a card may use."""
+    allowed = SCORED_SPLITS if scored else tuple(SPLITS)
+    if name not in allowed:
+        raise ValueError(f"split = {name!r}: allowed: {', '.join(allowed)}")
+    return SPLITS[name]
+
+
+def run_is_safe(record: dict[str, Any]) -> bool:
+    """No loss of separation and no integration step outside [366, 540] kt in this run."""
+    return int(record["los_count"]) == 0 and float(record["envelope_violation_fraction"]) == 0.0
+
+
+def lexicographic_score(runs: int, runs_safe: int, runs_home: int, flight_time_ratio: float | None) -> float:
+    """One number that orders cards of the same task, split and run count
+    lexicographically: by ``runs_safe`` first, then by ``runs_home``, then by speed.
+
+        score = runs_safe / runs + runs_home / (runs (runs + 1)) + speed / (runs + 1)²
+
+    with speed = 1 / (1 + ratio) ∈ (0, 1) for the flight-time ratio to the MPC (0 when
+    unknown). One more safe run always outweighs any number of runs home and any speed,
+    and one more run home any speed: the score lies in [0, 1 + 2/runs) and reads, to
+    first order, as the share of safe runs.
+    """
+    speed = 0.0 if flight_time_ratio is None or not math.isfinite(flight_time_ratio) else 1.0 / (1.0 + flight_time_ratio)
+    return runs_safe / runs + runs_home / (runs * (runs + 1)) + speed / (runs + 1) ** 2
+
+
+def _mean_flight_ratio(records: list[dict[str, Any]], reference: list[dict[str, Any]]) -> float | None:
+    """Σ policy flight time / Σ reference flight time over the (seed, aircraft) pairs that
+    both brought home; None when there is no such pair."""
+    by_seed = {int(r["seed"]): r for r in reference}
+    own = ref = 0.0
+    for record in records:
+        other = by_seed.get(int(record["seed"]))
+        if other is None:
+            continue
+        for t, a, t_ref, a_ref in zip(record["flight_time_min"], record["arrived"], other["flight_time_min"],
+                                      other["arrived"]):
+            if a and a_ref:
+                own += t
+                ref += t_ref
+    return own / ref if ref > 0 else None
+
+
+def card_from_records(task: Task, split: Split, policy: str, shield: bool, records: list[dict[str, Any]],
+                      reference: list[dict[str, Any]] | None) -> dict[str, Any]:
+    """The score card of finished runs (``evaluate``'s records) on ``split``'s first seeds;
+    ``reference``: the MPC's records on the same seeds (for the flight-time ratio)."""
+    if not records:
+        raise ValueError("a score card needs at least one run")
+    records = sorted(records, key=lambda r: r["seed"])
+    runs = len(records)
+    safe = [run_is_safe(r) for r in records]
+    home = [bool(r["success"]) for r in records]
+    flight = [t for r in records for t, a in zip(r["flight_time_min"], r["arrived"]) if a]
+    decision_means = [r["decision_s_mean"] for r in records if r["decisions"]]
+    latencies = sorted(t for r in records for t in r.get("decision_s_each") or ())
+    ratio = _mean_flight_ratio(records, reference) if reference else None
+    return {
+        "suite_version": SUITE_VERSION,
+        "task": task.name,
+        "scenario": task.scenario,
+        "wind_sigma_mps": task.wind_sigma_mps,
+        "split": split.name,
+        "seeds": [records[0]["seed"], records[-1]["seed"]],
+        "policy": policy,
+        "shield": shield,
+        "runs": runs,
+        "runs_home": sum(home),
+        "runs_safe": sum(safe),
+        "runs_safe_and_home": sum(s and h for s, h in zip(safe, home)),
+        "runs_with_los": sum(int(r["los_count"]) > 0 for r in records),
+        "runs_outside_envelope": sum(float(r["envelope_violation_fraction"]) > 0 for r in records),
+        "success_rate": sum(home) / runs,
+        "safe_rate": sum(safe) / runs,
+        "flight_time_min_mean": sum(flight) / len(flight) if flight else None,
+        "flight_time_ratio_to_mpc": ratio,
+        "decision_ms_mean": 1e3 * sum(decision_means) / len(decision_means) if decision_means else None,
+        "decision_ms_p99": 1e3 * latencies[min(len(latencies) - 1, math.ceil(0.99 * len(latencies)) - 1)]
+        if latencies else None,
+        "score": lexicographic_score(runs, sum(safe), sum(home), ratio),
+        "score_definition": "runs_safe/runs + runs_home/(runs(runs+1)) + (1/(1+flight_time_ratio_to_mpc))/(runs+1)^2: "
+                            "safety first, then arrivals, then speed (atc_nf_env.benchmark.lexicographic_score)",
+        "safety_definition": f"a run is safe when no pair came closer than 5 nm and no integration step left "
+                             f"[{AIRSPEED_MIN_KT:g}, {AIRSPEED_MAX_KT:g}] kt",
+    }
+
+
+def _study_records(policy: str, task: Task, split: Split, runs: int, shield: bool, path: Path | None,
+                   workers: int | None, progress: bool, policy_kwargs: dict[str, Any] | None = None
+                   ) -> list[dict[str, Any]]:
+    from atc_nf_env.evaluate import Study, evaluate, read_results
+
+    study = Study(policy=policy, scenario=task.scenario, wind_sigma_mps=task.wind_sigma_mps,
+                  max_time_s=task.max_time_s, shield=shield, policy_kwargs=dict(policy_kwargs or {}))
+    records: list[dict[str, Any]] = []
+    evaluate(study, runs, first_seed=split.first, workers=workers, out=path, resume=path is not None and path.exists(),
+             progress=progress, on_run=None if path is not None else records.append)
+    if path is not None:
+        _, records = read_results(path)
+    wanted = set(split.seeds(runs))
+    return [r for r in records if int(r["seed"]) in wanted]
+
+
+def score_card(policy: str, task: str, split: str, runs: int, *, shield: bool = False, reference: bool = True,
+               results_dir: Path | None = None, workers: int | None = None, progress: bool = False,
+               policy_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Fly ``policy`` (a registered name or a model file) on the first ``runs`` seeds of
+    ``split`` of ``task`` and return its score card.
+
+    With ``reference`` the MPC flies the same seeds for the flight-time ratio (its runs
+    are kept in ``results_dir`` and reused by later cards of the same task and split).
+    With ``results_dir`` every study's runs go to a resumable results file there
+    (``<task>/<split>/<label>.jsonl``); otherwise they are kept in memory only.
+    """
+    task_ = get_task(task)
+    split_ = get_split(split)
+    split_.seeds(runs)  # a clear error on a bad run count before anything flies
+
+    def path_of(label: str) -> Path | None:
+        if results_dir is None:
+            return None
+        folder = Path(results_dir) / task_.name / split_.name
+        folder.mkdir(parents=True, exist_ok=True)
+        return folder / f"{label}.jsonl"
+
+    label = (Path(policy).stem if policy.endswith(".zip") else policy) + ("+shield" if shield else "")
+    records = _study_records(policy, task_, split_, runs, shield, path_of(label), workers, progress, policy_kwargs)
+    ref = None
+    if reference:
+        ref = records if policy == "mpc" and not shield and not policy_kwargs else _study_records(
+            "mpc", task_, split_, runs, False, path_of("mpc"), workers, progress)
+    return card_from_records(task_, split_, policy, shield, records, ref)
+
+
+def format_card(card: dict[str, Any]) -> str:
+    """A short human-readable view of a card."""
+    def opt(value: float | None, fmt: str) -> str:
+        return "n/a" if value is None else format(value, fmt)
+
+    return "\n".join([
+        f"{card['policy']}{' (shielded)' if card['shield'] else ''} on {card['task']} ({card['split']} split, "
+        f"seeds {card['seeds'][0]}…{card['seeds'][1]}, suite {card['suite_version']})",
+        f"  runs {card['runs']}   home {card['runs_home']}   safe {card['runs_safe']}   "
+        f"(with LoS {card['runs_with_los']}, outside the envelope {card['runs_outside_envelope']})",
+        f"  flight {opt(card['flight_time_min_mean'], '.1f')} min   vs MPC {opt(card['flight_time_ratio_to_mpc'], '.3f')}   "
+        f"decision {opt(card['decision_ms_mean'], '.2f')} ms (p99 {opt(card['decision_ms_p99'], '.2f')})",
+        f"  score {card['score']:.6f}",
+    ])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="atc-nf benchmark",
+        description="Score a policy on a task of the benchmark suite (atc_nf_env.benchmark).",
+    )
+    parser.add_argument("--policy", required=True, help="a registered policy name (nf, mpc, ...) or a model file")
+    parser.add_argument("--shield", action="store_true", help="fly the policy inside the safety filter")
+    parser.add_argument("--task", required=True, choices=list(TASKS))
+    parser.add_argument("--split", required=True, choices=list(SCORED_SPLITS))
+    parser.add_argument("--runs", type=int, default=100, help="the split's first RUNS seeds (default 100)")
+    parser.add_argument("--no-reference", action="store_true",
+                        help="skip the MPC on the same seeds (no flight-time ratio; the score's speed term is 0)")
+    parser.add_argument("--results-dir", type=Path, default=None,
+                        help="keep every study's runs here, resumable (default: in memory only)")
+    parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--out", type=Path, default=None, help="write the card as JSON to this file")
+    parser.add_argument("--no-progress", action="store_true")
+    args = parser.parse_args(argv)
+    if args.out is not None and args.out.exists() and not args.out.is_file():
+        parser.error(f"--out {args.out}: not a regular file")
+    try:
+        card = score_card(args.policy, args.task, args.split, args.runs, shield=args.shield,
+                          reference=not args.no_reference, results_dir=args.results_dir, workers=args.workers,
+                          progress=not args.no_progress)
+    except ValueError as error:
+        print(f"atc-nf benchmark: {error}", file=sys.stderr)
+        return 2
+    print(format_card(card))
+    if args.out is not None:
+        args.out.write_text(json.dumps(card, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,95 @@
+"""The benchmark suite: disjoint seed splits, per-run safety, a score that ranks safety
+first, and score cards from the command line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from atc_nf_env import benchmark
+from atc_nf_env.benchmark import SPLITS, TASKS, card_from_records, get_split, get_task, lexicographic_score
+
+
+def test_the_splits_are_disjoint_and_the_scored_ones_lie_beyond_every_development_seed() -> None:
+    ranges = sorted((s.first, s.first + s.size) for s in SPLITS.values())
+    assert all(end <= start for (_, end), (start, _) in zip(ranges, ranges[1:]))
+    train = SPLITS["train"]
+    for name in benchmark.SCORED_SPLITS:
+        assert SPLITS[name].first >= train.first + train.size  # beyond 0 … 999 999 999
+
+
+def test_the_suite_names_its_tasks_and_refuses_others_and_the_train_split() -> None:
+    assert {"converging-4", "converging-6", "random-4", "random-6", "random-8"} <= set(TASKS)
+    with pytest.raises(ValueError, match="converging-4"):
+        get_task("converging-5")
+    with pytest.raises(ValueError, match="validation, test"):
+        get_split("train")
+    with pytest.raises(ValueError, match="10000 seeds"):
+        get_split("test").seeds(10_001)
+
+
+def record(seed: int, *, los: int = 0, outside: float = 0.0, home: bool = True, times=(60.0, 62.0)) -> dict:
+    return {"seed": seed, "los_count": los, "envelope_violation_fraction": outside, "success": home,
+            "arrived": [home, True], "flight_time_min": list(times), "decisions": 12, "decision_s_mean": 0.002,
+            "decision_s_each": [0.002] * 12}
+
+
+def test_a_card_counts_safety_per_run_not_as_a_share_of_steps() -> None:
+    records = [record(1_000_000_000), record(1_000_000_001, outside=1e-4), record(1_000_000_002, los=1)]
+    card = card_from_records(TASKS["random-4"], SPLITS["validation"], "x", False, records, None)
+    assert (card["runs"], card["runs_safe"], card["runs_with_los"], card["runs_outside_envelope"]) == (3, 1, 1, 1)
+    assert card["flight_time_ratio_to_mpc"] is None and card["score"] == lexicographic_score(3, 1, 3, None)
+
+
+def test_the_flight_ratio_compares_only_aircraft_both_brought_home_on_the_same_seeds() -> None:
+    own = [record(5, times=(50.0, 60.0)), record(6, home=False, times=(99.0, 40.0))]
+    mpc = [record(5, times=(100.0, 60.0)), record(6, times=(70.0, 80.0)), record(7, times=(1.0, 1.0))]
+    card = card_from_records(TASKS["random-4"], SPLITS["validation"], "x", False, own, mpc)
+    assert card["flight_time_ratio_to_mpc"] == pytest.approx((50 + 60 + 40) / (100 + 60 + 80))
+
+
+runs_and_counts = st.integers(1, 2000).flatmap(
+    lambda n: st.tuples(st.just(n), st.integers(0, n), st.integers(0, n), st.integers(0, n), st.integers(0, n),
+                        st.one_of(st.none(), st.floats(0.01, 100.0)), st.one_of(st.none(), st.floats(0.01, 100.0))))
+
+
+@given(runs_and_counts)
+def test_the_score_orders_safety_first_then_arrivals_then_speed(case) -> None:
+    runs, safe_a, safe_b, home_a, home_b, ratio_a, ratio_b = case
+    a = lexicographic_score(runs, safe_a, home_a, ratio_a)
+    b = lexicographic_score(runs, safe_b, home_b, ratio_b)
+    if safe_a != safe_b:
+        assert (a > b) == (safe_a > safe_b)
+    elif home_a != home_b:
+        assert (a > b) == (home_a > home_b)
+    assert 0.0 <= a < 1.0 + 2.0 / runs
+
+
+def test_the_command_writes_a_card_with_the_contract_keys(tmp_path) -> None:
+    out = tmp_path / "card.json"
+    done = subprocess.run(
+        [sys.executable, "-m", "atc_nf_env.benchmark", "--policy", "nf", "--task", "converging-4", "--split",
+         "validation", "--runs", "2", "--workers", "1", "--no-progress", "--out", str(out),
+         "--results-dir", str(tmp_path / "runs")],
+        capture_output=True, text=True, timeout=900,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    card = json.loads(out.read_text())
+    for key in ("task", "split", "runs", "runs_safe", "success_rate", "score"):
+        assert key in card
+    assert (card["task"], card["split"], card["runs"], card["seeds"]) == ("converging-4", "validation", 2,
+                                                                          [1_000_000_000, 1_000_000_001])
+    assert card["flight_time_ratio_to_mpc"] is not None  # the MPC flew the same seeds
+    assert (tmp_path / "runs" / "converging-4" / "validation" / "mpc.jsonl").exists()
+    assert "score" in done.stdout
+
+
+def test_the_command_refuses_an_unscored_split_before_flying() -> None:
+    done = subprocess.run([sys.executable, "-m", "atc_nf_env.benchmark", "--policy", "nf", "--task", "random-4",
+                           "--split", "train"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "invalid choice: 'train'" in done.stderr
