@@ -24,7 +24,7 @@ define torch_venv
 endef
 
 # The extras in a variable: a comma inside $(call)'s arguments would split them.
-TEST_INSTALL := -e ".[test,rl,ray]"
+TEST_INSTALL := -e ".[test,rl,ray,dataset]"
 $(BIN)/atc-nf: pyproject.toml
 	$(call torch_venv,$(VENV),$(TEST_INSTALL))
 	touch $@

@@ -30,6 +30,8 @@ CORE_COMMANDS = {
     "fly": "fly one episode and print a table per aircraft",
     "evaluate": "a Monte Carlo study: many seeded episodes, in parallel, resumable",
     "reproduce": "the paper's figures and the reproduction table from fresh runs (into out/ unless --write)",
+    "benchmark": "score a policy on a task of the benchmark suite (a score card, safety first)",
+    "dataset": "record a policy on a benchmark task as a local Minari dataset; needs the dataset extra",
 }
 #: One-line help of the subcommands this project declares in ``COMMAND_GROUP`` (any
 #: other installed subcommand is listed with the module that provides it).
@@ -37,8 +39,12 @@ _PLUGIN_HELP = {
     "train": "train a Stable-Baselines3 agent (PPO parameter-shared, or PPO/SAC centralized); needs the rl extra",
     "imitate": "imitate the MCMC-MPC: demonstrations, behaviour cloning, DAgger, PPO fine-tuning; needs the rl extra",
 }
-#: Subcommands whose script owns its options (and its --help).
-_DELEGATED_CORE = ("reproduce",)
+#: Subcommands whose module owns its options (and its --help): ``module.main(argv)``.
+_DELEGATED_CORE = {
+    "reproduce": "atc_nf_env.experiments.reproduce",
+    "benchmark": "atc_nf_env.benchmark",
+    "dataset": "atc_nf_env.dataset",
+}
 
 
 def make_policy(spec: str, **settings: Any):
@@ -347,10 +353,10 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 # -- delegated subcommands -------------------------------------------------------------
-def _reproduce(rest: list[str]) -> int:
-    from atc_nf_env.experiments import reproduce
+def _run_delegated(command: str, rest: list[str]) -> int:
+    import importlib
 
-    return reproduce.main(rest)
+    return importlib.import_module(_DELEGATED_CORE[command]).main(rest)
 
 
 class CommandUnavailable(Exception):
@@ -445,8 +451,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = argv[0] if argv else None
     try:
         if command in _DELEGATED_CORE:
-            # The script owns its options (and its --help).
-            return _reproduce(argv[1:])
+            # The module owns its options (and its --help).
+            return _run_delegated(command, argv[1:])
         plugins = _plugin_commands()
         if command in plugins:
             return _run_plugin(command, plugins[command], argv[1:])

@@ -93,3 +93,12 @@ def test_the_command_refuses_an_unscored_split_before_flying() -> None:
     done = subprocess.run([sys.executable, "-m", "atc_nf_env.benchmark", "--policy", "nf", "--task", "random-4",
                            "--split", "train"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and "invalid choice: 'train'" in done.stderr
+
+
+@pytest.mark.parametrize("command, option", [("benchmark", "--split"), ("dataset", "--dataset-id")])
+def test_atc_nf_routes_the_benchmark_and_dataset_commands_to_their_modules(command, option, capsys) -> None:
+    from atc_nf_env import cli
+
+    with pytest.raises(SystemExit) as exit_:
+        cli.main([command, "--help"])
+    assert exit_.value.code == 0 and option in capsys.readouterr().out
