@@ -4,7 +4,9 @@
 so it wraps the MCMC-MPC, the NF alone and trained agents alike (``atc-nf fly|evaluate
 --policy P --shield``). At every decision (every T = 5 min) it
 
-1. asks the wrapped policy for its waypoints (N, 2) nm;
+1. asks the wrapped policy for its waypoints (N, 2) nm; a waypoint that is not finite or
+   lies outside the workspace's bounding square is unsafe by definition and replaced by
+   the aircraft's homing waypoint (counted in ``shield_invalid_waypoints``);
 2. predicts them with the simulator kernel, one world started from a copy of the state,
    over the coming period and, with ``lookahead_periods=2`` (the default), one more
    period in which every aircraft is re-aimed home (``home_distance_nm`` toward its
@@ -55,6 +57,7 @@ keys at every call): decisions seen, decisions changed for safety, aircraft chan
 decisions whose change was needed only by the look-ahead period, by kind the decisions
 settled by a single-aircraft alternative, by an all-aircraft one, by a sampled one and by
 the MPC fallback,
+aircraft-decisions whose proposed waypoint was not a finite point of the workspace,
 decisions applied although predicted unsafe (``shield_unresolved``: a least-bad fallback,
 or an MPC decision the filter's prediction still finds unsafe), aircraft handed over by
 the stall rule and the decisions in which it flew one.
@@ -121,6 +124,7 @@ SHIELD_INFO_KEYS = (
     "shield_unresolved",
     "shield_stalled_aircraft",
     "shield_homing_decisions",
+    "shield_invalid_waypoints",
 )
 
 #: Turns of a proposed waypoint about its aircraft tried per aircraft, rad.
@@ -289,6 +293,7 @@ class SafetyFilter:
         self._params = self._config.to_params(scenario.workspace_radius_nm, stop_on_violation=True)
         self._period_steps = kernel.steps_for(self.period_s, config.dt_s)
         self._waypoint_limit_nm = 0.99 * (scenario.workspace_radius_nm - config.aircraft_radius_nm)
+        self._workspace_radius_nm = float(scenario.workspace_radius_nm)
         self._rng = np.random.default_rng([0 if seed is None else seed, _SAMPLE_STREAM])
         self._predictor = PlanPredictor(self._params, self._period_steps, self.lookahead_periods,
                                         self.home_distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm)
@@ -328,13 +333,15 @@ class SafetyFilter:
             raise ValueError(f"{type(self.policy).__name__}.act returned shape {proposal.shape}; expected ({n}, 2) nm")
         if not proposal.flags.c_contiguous:
             proposal = np.ascontiguousarray(proposal)
+        if not (np.abs(proposal) <= self._workspace_radius_nm).all():  # NaN fails the test too
+            proposal = self._replace_invalid(state, proposal)
         memory = self._memory
         # The routine decision, wind estimate and stall rule included, in one compiled call
         # (``PlanPredictor.screen``): its Python took about a fifth of a shielded decision.
         verdict = self._predictor.screen(state, proposal, float(view.time_s), self.period_s, memory,
                                          self.stall_progress_nm)
-        if verdict == SCREEN_NOT_FINITE:
-            raise ValueError(f"{type(self.policy).__name__}.act returned NaN or inf waypoints: {proposal.tolist()}")
+        if verdict == SCREEN_NOT_FINITE:  # the proposal was made finite above: the state is not
+            raise ValueError(f"the state has NaN or inf values; the filter cannot predict it: {state.tolist()}")
         counts = self._counts
         counts["shield_decisions"] += 1
         counts["shield_stalled_aircraft"] = int(memory.counts[1])  # the stall rule counts them in ``screen``
@@ -387,7 +394,10 @@ class SafetyFilter:
             survived_m, positions_m, alive_m = self._predict(state, applied[None])
             if survived_m[0] < self._full_steps():
                 counts["shield_unresolved"] += 1
-            memory.remember(view.time_s + self.period_s, positions_m[0], alive_m[0])
+            if survived_m[0] < self._period_steps:
+                memory.forget()  # a prediction cut short at a breach says nothing of the wind
+            else:
+                memory.remember(view.time_s + self.period_s, positions_m[0], alive_m[0])
             return applied
         counts["shield_unresolved"] += 1
         candidates, changed = (np.concatenate(parts) for parts in zip(*tried))
@@ -410,6 +420,22 @@ class SafetyFilter:
     # -- internals ----------------------------------------------------------------------
     def _full_steps(self) -> int:
         return self.lookahead_periods * self._period_steps
+
+    def _replace_invalid(self, state: np.ndarray, proposal: np.ndarray) -> np.ndarray:
+        """The proposal with every waypoint that is not finite or lies outside the
+        workspace's bounding square replaced: a flying aircraft's by its homing waypoint
+        (counted as a change), any other's by its current waypoint. Such a waypoint is
+        unsafe by definition: the kernel cannot fly it (NaN, inf) or its navigation
+        function overflows (1e100 nm)."""
+        invalid = ~(np.abs(proposal) <= self._workspace_radius_nm).all(axis=1)  # NaN fails the test too
+        flying = state[:, S_STATUS] == FLYING
+        replaced = np.where(invalid[:, None], state[:, S_WP_X : S_WP_Y + 1], proposal)
+        homed = invalid & flying
+        if homed.any():
+            replaced[homed] = self._homing(state)[homed]
+            self._counts["shield_invalid_waypoints"] += int(homed.sum())
+            self._counts["shield_aircraft_changed"] += int(homed.sum())
+        return np.ascontiguousarray(replaced)
 
     def _apply(self, proposal: np.ndarray, applied: np.ndarray, flying: np.ndarray) -> np.ndarray:
         """``applied`` (N, 2) nm for the flying aircraft (``flying`` (N,) bool), the proposal

@@ -211,8 +211,8 @@ def test_bad_arguments_are_refused():
         SafetyFilter(AimThrough(), fallback="least-bad").act(None)
 
 
-@pytest.mark.parametrize("bad", [np.zeros((2, 2)), np.full((3, 2), np.nan), np.zeros((3, 2)) + 1j])
-def test_a_policy_returning_bad_waypoints_is_refused(bad):
+@pytest.mark.parametrize("bad", [np.zeros((2, 2)), np.zeros((3, 2)) + 1j])
+def test_a_policy_returning_waypoints_of_the_wrong_shape_or_type_is_refused(bad):
     class Bad(AimThrough):
         def act(self, view):
             return bad
@@ -225,6 +225,61 @@ def test_a_policy_returning_bad_waypoints_is_refused(bad):
     shielded.reset(scenario, SimConfig(), 0)
     with pytest.raises(ValueError, match="act returned"):
         shielded.act(Simulation(scenario).view())
+
+
+class Garbage(AimThrough):
+    """Proposes, for the aircraft picked by ``pattern`` (one bit each), a waypoint that is
+    not a finite point of the workspace; the others aim through their destinations."""
+
+    name = "garbage"
+
+    def __init__(self, pattern: int, value: float) -> None:
+        super().__init__()
+        self.pattern, self.value = pattern, value
+
+    def act(self, view: WorldView) -> np.ndarray:
+        waypoints = super().act(view).copy()
+        for i in range(len(waypoints)):
+            if self.pattern >> (i + len(self.proposals)) % 6 & 1:
+                waypoints[i] = (self.value, -self.value if i % 2 else 0.0)
+        return waypoints
+
+
+@settings(max_examples=8, deadline=None)
+@given(pattern=st.integers(1, 63), value=st.sampled_from([np.nan, np.inf, -np.inf, 1e100, -1e308, 5e3]),
+       seed=st.integers(0, 50))
+def test_waypoints_that_are_no_finite_point_of_the_workspace_are_unsafe_not_an_error(pattern, value, seed):
+    """NaN, inf and absurd waypoints are replaced by the homing waypoint, counted, and the
+    episode flies home safe: never an exception from the filter or the kernel."""
+    shielded = SafetyFilter(Garbage(pattern, value))
+    result = run_episode(shielded, make_scenario("converging-4"), seed=seed)
+    info = shielded.episode_info()
+    assert info["shield_invalid_waypoints"] > 0
+    assert np.isfinite(result.waypoints).all()
+    m = result.metrics
+    assert m.success and m.los_count == 0 and m.envelope_violation_fraction == 0.0
+
+
+def test_the_mpc_fallback_forgets_the_wind_after_a_prediction_cut_short_in_its_first_period(monkeypatch):
+    """A prediction stopped at a breach leaves the aircraft short of where the period
+    would have put them: read as drift, that gap once grew the wind estimate to (406, 68)
+    kt. The MPC-fallback branch forgets it, as the least-bad branch does."""
+    scenario = make_scenario("converging-3")
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.simulation import Simulation
+
+    shielded = NoAlternatives(Behind(), mpc_settings={"extractions": 16})
+    shielded.reset(scenario, SimConfig(), 0)
+    flown = shielded._predict
+
+    def breached_at_once(state, waypoints):
+        survived, positions, alive = flown(state, waypoints)
+        return np.zeros_like(survived), positions * 0.5, alive
+
+    monkeypatch.setattr(shielded, "_predict", breached_at_once)
+    shielded.act(Simulation(scenario).view())
+    assert shielded.episode_info()["shield_mpc_fallbacks"] == 1
+    assert shielded._memory.timing[0] == 0.0  # nothing remembered to measure drift against
 
 
 def test_study_and_cli_count_interventions(tmp_path, capsys):
