@@ -178,8 +178,9 @@ class SafetyFilter:
             the MCMC-MPC's decision from then on until it arrives (by the homing waypoint
             of the look-ahead period with ``fallback="least-bad"``), nm; None turns the
             rule off. The default, 0 nm, hands over an aircraft no closer to home than
-            ``stall_periods`` periods ago (holding, circling, flown away; the README's
-            "Safety filter" says what it fixes and what it costs).
+            ``stall_periods`` periods ago (holding, circling, flown away). A positive
+            value asks at most half of what was left at the window's start, so that an
+            aircraft on its final approach is not handed over for having little left.
         stall_periods: the stall rule's window, periods of ``period_s``.
 
     Example:

@@ -365,8 +365,11 @@ def _screen(
         rows += 1
         if rows > distances.shape[0] - 1:
             for i in range(n):
+                # On the final approach less is left to close than the rule asks: half of
+                # what was left at the window's start is then the progress asked for.
+                asked = min(stall_progress_nm, 0.5 * distances[0, i])
                 if (state[i, S_STATUS] == FLYING and not homebound[i]
-                        and distances[rows - 1, i] > distances[0, i] - stall_progress_nm):
+                        and distances[rows - 1, i] > distances[0, i] - asked):
                     homebound[i] = True
                     counts[1] += 1
             for r in range(rows - 1):
