@@ -633,6 +633,21 @@ def test_the_screen_hands_over_an_aircraft_no_closer_to_home_after_the_window():
     assert not fresh.homebound.any() and fresh.counts[1] == 0
 
 
+def test_a_positive_stall_progress_asks_at_most_half_of_what_was_left_at_the_windows_start():
+    """30 nm asked over the window: an aircraft 250 nm out must close 30 nm, one 20 nm out
+    only 10 nm (its final approach), so 20 → 8 nm passes and 20 → 12 nm is handed over."""
+    from atc_nf_env.kernel import S_DEST_X, S_DEST_Y, S_X, S_Y
+
+    predictor, memory, state, proposal = _screen_setup(stall_periods=2)
+    start, end = np.array([20.0, 20.0, 250.0]), np.array([12.0, 8.0, 215.0])
+    for k in range(3):
+        moved = state.copy()
+        moved[:, S_X] = moved[:, S_DEST_X] + start + (end - start) * k / 2
+        moved[:, S_Y] = moved[:, S_DEST_Y]
+        predictor.screen(moved, proposal, 300.0 * k, 300.0, memory, 30.0)
+    assert memory.homebound.tolist() == [True, False, False] and memory.counts[1] == 1
+
+
 class _PythonMemory:
     """The filter's wind estimate and stall rule as Python computed them before they moved
     into ``PlanPredictor.screen`` (the reference ``screen`` must match bit for bit)."""
