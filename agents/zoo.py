@@ -197,7 +197,7 @@ def rows(studies: list[Study], models: Sequence[Path]) -> list[list[str]]:
             mine = [alone[s] for s in in_family if s in alone]
             filtered = [shielded[s] for s in in_family if s in shielded]
             table.append([
-                f"[`{name}`](models/{name}.md)",
+                f"`{name}`",
                 trained_on(meta),
                 family,
                 _counts(_family(s)[1] for s in in_family),
