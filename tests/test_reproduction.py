@@ -165,13 +165,6 @@ def test_reproduce_end_to_end_keeps_marked_sections_and_fills_the_readme(tmp_pat
         "mpc_converging4_airspeed_bands.png", "mpc_converging6_airspeed_bands.png"}
 
 
-def test_readme_results_equal_the_reproduction_summary() -> None:
-    report = (ROOT / "REPRODUCTION.md").read_text()
-    summary = report.split("## In short\n\n", 1)[1].split("\n\n", 1)[0]
-    block = marked_sections((ROOT / "README.md").read_text())[reproduce.SUMMARY_BLOCK]
-    assert block == f"<!-- begin {reproduce.SUMMARY_BLOCK} -->\n{summary}\n<!-- end {reproduce.SUMMARY_BLOCK} -->"
-
-
 def test_a_section_is_replaced_only_between_its_own_markers() -> None:
     text = "<!-- end a -->\n<!-- begin b -->\nkeep\n<!-- end b -->\n"
     assert replace_marked_section(text, "a", "new") is None  # an end marker alone is no section
