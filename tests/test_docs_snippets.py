@@ -222,3 +222,38 @@ def test_zoo_table_is_generated() -> None:
     section = marked_sections((ROOT / "agents" / "README.md").read_text())[zoo.SECTION]
     expected = f"<!-- begin {zoo.SECTION} -->\n{zoo.table().rstrip()}\n<!-- end {zoo.SECTION} -->"
     assert section == expected, "agents/README.md's model table is stale: run `python -m agents.zoo --write`"
+
+
+def _summary(runs: int, los: int, envelope: int, flight: float, decision_s: float, seeds: int) -> dict:
+    return {"runs": runs, "runs_with_los": los, "runs_with_envelope_violation": envelope,
+            "flight_time_min": {"mean": flight}, "decision_s": {"mean": decision_s},
+            "study": {"seeds": [0, seeds - 1], "wind_sigma_mps": 5.17, "max_time_s": 14400.0, "build": "b"}}
+
+
+def test_zoo_counts_safe_runs_per_family_and_compares_with_the_mpc_on_the_same_seeds(tmp_path: Path) -> None:
+    import json
+    import shutil
+
+    from agents import zoo
+
+    results, models = tmp_path / "results", tmp_path / "models"
+    results.mkdir()
+    models.mkdir()
+    shutil.copy(ROOT / "agents" / "models" / "finetuned_ppo.zip", models / "finetuned_ppo.zip")
+    (results / "a_summary.json").write_text(json.dumps({
+        "converging-4": {"mpc": _summary(10, 0, 0, 70.0, 0.01, 10),
+                         "finetuned_ppo": _summary(10, 0, 2, 63.0, 30e-6, 10),
+                         "finetuned_ppo+shield": _summary(10, 0, 0, 66.5, 90e-6, 10)},
+        "random-6": {"finetuned_ppo": _summary(10, 1, 3, 60.0, 40e-6, 10)},
+    }))
+    # The larger study of a scenario wins; its MPC row is on other seeds, so no ratio there.
+    (results / "b_summary.json").write_text(json.dumps({
+        "random-6": {"finetuned_ppo": _summary(20, 1, 3, 60.0, 2e-3, 20), "mpc": _summary(10, 0, 0, 50.0, 0.01, 10)},
+    }))
+    text = zoo.table(results, models)
+    converging = next(line for line in text.splitlines() if "| converging |" in line)
+    random_row = next(line for line in text.splitlines() if "| random |" in line)
+    assert "| PPO fine-tuning of DAgger: converging 4 |" in converging
+    assert "| no: 8/10 | **yes**: 10/10 | 0.90×; 0.95× | 30 µs; 90 µs |" in converging
+    # Both kinds of breach in one summary: the union is only bounded.
+    assert "| 6 | no: ≤ 17/20 | not flown | no MPC run; – | 2.0 ms; – |" in random_row
