@@ -158,7 +158,7 @@ def _normal(command: str) -> str:
 
 SCALED_N = {_normal(k): v for k, v in SCALED.items()}
 SKIPPED_N = {_normal(k): v for k, v in SKIPPED.items()}
-#: Commands that have passed in this session: a command that two documents show (and that
+#: Commands that have passed in this test run: a command that two documents show (and that
 #: reads nothing its block wrote) runs once.
 _PASSED: set[str] = set()
 
