@@ -12,7 +12,7 @@ DEMO_BIN := $(DEMO_VENV)/bin
 # torch>=2.3, and a bare requirement would pull a multi-GB CUDA build.
 TORCH ?= torch==2.13.0
 
-.PHONY: demo test test-integrations bench reproduce clean
+.PHONY: demo test docs test-integrations bench reproduce clean
 
 # A venv with the CPU torch installed first, then the given pip arguments:
 # $(call torch_venv,VENV_DIR,PIP_ARGUMENTS)
@@ -24,7 +24,7 @@ define torch_venv
 endef
 
 # The extras in a variable: a comma inside $(call)'s arguments would split them.
-TEST_INSTALL := -e ".[test,rl,ray,dataset]"
+TEST_INSTALL := -e ".[test,rl,ray,dataset,docs]"
 $(BIN)/atc-nf: pyproject.toml
 	$(call torch_venv,$(VENV),$(TEST_INSTALL))
 	touch $@
@@ -44,6 +44,10 @@ demo: $(DEMO_BIN)/atc-nf
 
 test: $(BIN)/atc-nf
 	$(BIN)/python -m pytest -q
+
+# The documentation site (Sphinx, Furo, MyST) into out/docs; any warning fails the build.
+docs: $(BIN)/atc-nf
+	$(BIN)/python -m sphinx -W --keep-going -q -b html docs out/docs
 
 # The MARL libraries (integration_tests/, examples/train_*.py) in venvs of their own:
 # RLlib pins an older gymnasium than the default venv, BenchMARL an older torchrl than

@@ -6,7 +6,8 @@ For every scenario and policy this runs ``atc_nf_env.evaluate.evaluate`` (the ev
 ``atc-nf evaluate``) on the held-out seeds 0..RUNS-1 (training used 10 000 and up, the
 imitation's quick checks 5 000..), keeps each study's runs in ``--out`` (JSON lines,
 resumable: a rerun only flies what is missing), and writes the summaries (``--summary``)
-and the markdown table (``--table``); ``agents/results/`` holds those of ``agents/README.md``.
+and the markdown table (``--table``); ``agents/results/`` holds those behind the model zoo
+table of ``agents/README.md`` (``python -m agents.zoo --write``).
 
 ``--shield`` adds, for every model, a study of the model inside the safety filter
 (``atc_nf_env.shield.SafetyFilter``, ``atc-nf evaluate --shield``), labelled ``MODEL+shield``,
