@@ -384,7 +384,8 @@ def scenario_from_dict(data: Mapping[str, Any]) -> Scenario:
             if not _is_number(entry[key]):
                 raise ValueError(f"aircraft[{index}].{key} = {_shown(entry[key])}: must be {allowed}")
             degrees = _as_float(entry[key], f"aircraft[{index}].{key}", allowed)
-            if not (math.isfinite(degrees) and abs(degrees) <= MAX_HEADING_DEG):
+            # NaN and inf go on to validate_scenario, which names the array holding them.
+            if math.isfinite(degrees) and abs(degrees) > MAX_HEADING_DEG:
                 raise ValueError(f"aircraft[{index}].{key} = {degrees!r}: must be {allowed}")
             turns[key] = math.radians(degrees)
         starts.append(start)
