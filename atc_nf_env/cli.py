@@ -270,7 +270,8 @@ def build_parser() -> argparse.ArgumentParser:
                         formatter_class=HelpFormatter)
     _add_episode_options(ev)
     ev.add_argument("--runs", type=_positive_int, default=100, help="number of episodes (seeds SEED..SEED+RUNS-1)")
-    ev.add_argument("--workers", type=_positive_int, help="worker processes (default: all cores)")
+    ev.add_argument("--workers", type=_positive_int,
+                    help="worker processes (default and most: the usable cores; never more than the runs left)")
     ev.add_argument("--backend", choices=BACKENDS, default="local", help="local processes or a Ray cluster")
     ev.add_argument("--out", type=Path, help="JSON-lines file receiving every finished run")
     ev.add_argument("--resume", action="store_true", help="finish the study in --out, skipping runs already there")

@@ -12,8 +12,8 @@ import hashlib
 import json
 import math
 import os
-import stat
 import re
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping

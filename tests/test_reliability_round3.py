@@ -26,13 +26,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from _faults import deadline
+
 from atc_nf_env import build
 from atc_nf_env import evaluate as evaluate_module
-from atc_nf_env.cli import main
 from atc_nf_env.episode import LayoutSeedWarning, run_episode
-from atc_nf_env.evaluate import ResultsFile, Study, evaluate, read_results, run_one
+from atc_nf_env.evaluate import Study, evaluate, read_results, run_one
 from atc_nf_env.policy import make_policy
 from atc_nf_env.scenarios import Scenario, make_scenario, max_random_aircraft, scenario_from_dict
 from baselines import NFDirect
@@ -122,8 +121,8 @@ def test_the_fingerprint_covers_agents_envs_shield_and_libraries_without_importi
     pytest.importorskip("torch")
     assert {"torch", "stable-baselines3"} <= set(versions)
     done = subprocess.run(
-        [sys.executable, "-c", "import sys; from atc_nf_env import build; build.fingerprint(); "
-                               "print(sorted({'baselines', 'agents', 'torch'} & set(sys.modules)))"],
+        [sys.executable, "-c", ("import sys; from atc_nf_env import build; build.fingerprint(); "
+                                "print(sorted({'baselines', 'agents', 'torch'} & set(sys.modules)))")],
         env=_env(), capture_output=True, text=True, timeout=120, check=True,
     )
     assert done.stdout.strip() == "[]"
@@ -272,7 +271,7 @@ def test_workers_die_with_their_parent_and_resume_is_exact(how, tmp_path) -> Non
     evaluate(Study(policy="nf", scenario="converging-3", max_time_s=3600.0), wanted, workers=1, out=reference,
              progress=False)
     _, expected = read_results(reference)
-    flight = lambda r: {k: v for k, v in r.items() if k not in {"wall_s", "decision_s_mean", "decision_s_each",  # noqa: E731
+    flight = lambda r: {k: v for k, v in r.items() if k not in {"wall_s", "decision_s_mean", "decision_s_each",
                                                                 "peak_rss_mb", "compile_s"}}
     by_seed = {r["seed"]: flight(r) for r in resumed}
     assert all(by_seed[r["seed"]] == flight(r) for r in expected)
@@ -284,9 +283,9 @@ def test_workers_die_with_their_parent_and_resume_is_exact(how, tmp_path) -> Non
 def test_a_second_writer_is_refused_naming_the_file(tmp_path) -> None:
     out = tmp_path / "r.jsonl"
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time; from pathlib import Path; "
-                               "from atc_nf_env.evaluate import ResultsFile; f = ResultsFile(Path(sys.argv[1])); "
-                               "print('locked', flush=True); time.sleep(120)", str(out)],
+        [sys.executable, "-c", ("import sys, time; from pathlib import Path; "
+                                "from atc_nf_env.evaluate import ResultsFile; f = ResultsFile(Path(sys.argv[1])); "
+                                "print('locked', flush=True); time.sleep(120)"), str(out)],
         env=_env(), stdout=subprocess.PIPE, text=True,
     )
     try:
@@ -361,7 +360,7 @@ def test_a_special_results_file_is_refused_before_anything_is_read_or_flown(spec
         done = subprocess.run(
             [sys.executable, "-m", "atc_nf_env.cli", "evaluate", "--policy", "nf", "--scenario", "converging-3",
              "--runs", "1", "--workers", "1", "--no-progress", "--out", str(path), *resume],
-            env=_env(), capture_output=True, text=True, timeout=90, preexec_fn=_limit_memory,
+            env=_env(), capture_output=True, text=True, timeout=90, preexec_fn=_limit_memory, check=False,
         )
         assert done.returncode == 2, done.stderr[-2000:]
         assert re.search(rf"error: .*{re.escape(str(path))} is (not a regular file|a directory)", done.stderr), done.stderr
