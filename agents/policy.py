@@ -116,7 +116,7 @@ def _saved_data(path: str | Path) -> dict[str, Any]:
     try:
         data, _, _ = load_from_zip_file(str(path), device="cpu", load_data=True, print_system_info=False)
     except Exception as error:  # zipfile, json and pickle errors of a damaged or foreign file
-        raise ValueError(f"{path}: not a readable Stable-Baselines3 model ({type(error).__name__}: {error}); "
+        raise ValueError(f"{path}: not a Stable-Baselines3 model, or a damaged one ({type(error).__name__}: {error}); "
                          f"accepted: {_ACCEPTED}") from None
     if not isinstance(data, dict) or not data:
         raise ValueError(f"{path}: a zip without a Stable-Baselines3 'data' entry (cut off, or another kind of "

@@ -530,7 +530,8 @@ class ResultsFile:
     def __init__(self, path: Path) -> None:
         self.path = path
         _check_regular_file(path)
-        flags = os.O_RDWR | os.O_CREAT | os.O_APPEND | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+        flags = (os.O_RDWR | os.O_CREAT | os.O_APPEND | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+                 | getattr(os, "O_BINARY", 0))
         try:
             # O_NONBLOCK: a FIFO put in its place since the check above is not waited on.
             self.fd = os.open(path, flags, 0o644)
@@ -562,9 +563,10 @@ class ResultsFile:
     def read(self) -> bytes:
         """The file's bytes."""
         size = os.fstat(self.fd).st_size
+        os.lseek(self.fd, 0, os.SEEK_SET)  # appends go to the end whatever the offset (O_APPEND)
         chunks, offset = [], 0
         while offset < size:
-            chunk = os.pread(self.fd, min(size - offset, 1 << 24), offset)
+            chunk = os.read(self.fd, min(size - offset, 1 << 24))
             if not chunk:
                 break
             chunks.append(chunk)

@@ -426,7 +426,7 @@ def test_foreign_and_mislabelled_model_zips_are_refused_saying_what_they_hold(tm
     said = {"dqn": "another algorithm \\(DQNPolicy", "td3": "another algorithm \\(TD3Policy",
             "sac": "a SAC model \\(SACPolicy\\) and no atc_nf_meta", "ppo_labelled_sac": "says algorithm 'sac', but it "
             "holds a PPO model", "truncated": "without a Stable-Baselines3 'data' entry",
-            "foreign": "without a Stable-Baselines3 'data' entry", "text": "not a readable Stable-Baselines3 model"}
+            "foreign": "without a Stable-Baselines3 'data' entry", "text": "not a Stable-Baselines3 model, or a damaged one"}
     for name, path in paths.items():
         with pytest.raises(ValueError, match=rf"{path.name}: .*{said[name]}.*accepted: a PPO model") as caught:
             make_policy(str(path))
