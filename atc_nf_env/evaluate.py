@@ -117,6 +117,8 @@ class Study:
     _fixed_scenario: Scenario | None = field(default=None, init=False, repr=False, compare=False)
     #: SHA-256 of the model file when the policy is read from one.
     _policy_sha256: str | None = field(default=None, init=False, repr=False, compare=False)
+    #: ``scenario_identity``'s text, computed once from the draw of seed 0.
+    _scenario_identity: str = field(default="", init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         SimConfig.preset(self.physics)  # a clear error on an unknown name
@@ -138,8 +140,12 @@ class Study:
         # Fail before any worker starts on a bad name or setting.
         self.make_policy()
         scenario = make_scenario(self.scenario, seed=0)
-        if not draws_per_seed(self.scenario):
+        if draws_per_seed(self.scenario):
+            identity = f"{self.scenario} per seed, seed 0 sha256:{scenario.content_sha256()}"
+        else:
             object.__setattr__(self, "_fixed_scenario", scenario)
+            identity = f"fixed sha256:{scenario.content_sha256()}"
+        object.__setattr__(self, "_scenario_identity", identity)
         if isinstance(self.policy, str) and _is_policy_file(self.policy):
             object.__setattr__(self, "_policy_sha256", file_sha256(self.policy))
 
@@ -154,9 +160,7 @@ class Study:
         (H: ``Scenario.content_sha256``, whether it came from a name, a dict or a file), or
         ``random-N per seed, seed 0 sha256:H`` for a family drawn with each run's seed (the
         generator's code is in the build fingerprint)."""
-        if self._fixed_scenario is not None:
-            return f"fixed sha256:{self._fixed_scenario.content_sha256()}"
-        return f"{self.scenario} per seed, seed 0 sha256:{make_scenario(self.scenario, seed=0).content_sha256()}"
+        return self._scenario_identity
 
     def policy_identity(self) -> str:
         """What the study's policy is, by content: its name for a named policy (its code is
