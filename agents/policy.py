@@ -96,9 +96,35 @@ def env_meta(cfg: EnvConfig, n_slots: int | None = None) -> dict[str, Any]:
 
 def read_meta(path: str | Path) -> dict[str, Any]:
     """The ``atc_nf_meta`` of a saved model (``default_meta()`` where it has none)."""
+    return _meta_of(_saved_data(path))
+
+
+#: What ``SB3AgentPolicy`` flies: SB3 policy classes by the algorithm that saves them.
+POLICY_CLASSES = {"ppo": "ActorCriticPolicy", "sac": "SACPolicy"}
+_ACCEPTED = ("a PPO model (ActorCriticPolicy) or a SAC model (SACPolicy) saved by `atc-nf train` or "
+             "`atc-nf imitate` (shipped models: agents/models/*.zip)")
+
+
+def _saved_data(path: str | Path) -> dict[str, Any]:
+    """The ``data`` entry of an SB3 zip (its class, spaces, settings and our metadata).
+
+    Raises:
+        ValueError: the file is not a zip, is cut off, or holds no SB3 ``data`` entry.
+    """
     from stable_baselines3.common.save_util import load_from_zip_file
 
-    data, _, _ = load_from_zip_file(str(path), device="cpu", load_data=True, print_system_info=False)
+    try:
+        data, _, _ = load_from_zip_file(str(path), device="cpu", load_data=True, print_system_info=False)
+    except Exception as error:  # zipfile, json and pickle errors of a damaged or foreign file
+        raise ValueError(f"{path}: not a Stable-Baselines3 model, or a damaged one ({type(error).__name__}: {error}); "
+                         f"accepted: {_ACCEPTED}") from None
+    if not isinstance(data, dict) or not data:
+        raise ValueError(f"{path}: a zip without a Stable-Baselines3 'data' entry (cut off, or another kind of "
+                         f"zip); accepted: {_ACCEPTED}")
+    return data
+
+
+def _meta_of(data: dict[str, Any]) -> dict[str, Any]:
     meta = default_meta()
     saved = (data or {}).get(META_KEY)
     if isinstance(saved, dict):
@@ -132,20 +158,41 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
 
 def _load_model(path: Path) -> tuple[Any, dict[str, Any]]:
     try:
-        meta = read_meta(path)
+        data = _saved_data(path)
     except ImportError as error:  # pragma: no cover - depends on the install
         raise ImportError("trained agents need stable-baselines3: pip install 'atc-nf-env[rl]'") from error
-    except Exception as error:  # a damaged or foreign zip
-        raise ValueError(f"{path}: not a Stable-Baselines3 model ({error})") from None
+    meta = _meta_of(data)
     algo = meta.get("algo", "ppo")
     if algo not in ALGOS:
         raise ValueError(f"{path}: algorithm {algo!r} in its metadata; allowed: {', '.join(ALGOS)}")
     if meta.get("mode") not in MODES:
         raise ValueError(f"{path}: mode {meta.get('mode')!r} in its metadata; allowed: {', '.join(MODES)}")
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.sac.policies import SACPolicy
+
+    policy_class = data.get("policy_class")
+    expected = {"ppo": ActorCriticPolicy, "sac": SACPolicy}[algo]
+    if not isinstance(policy_class, type):
+        raise ValueError(f"{path}: its policy class cannot be read ({policy_class!r:.80}); accepted: {_ACCEPTED}")
+    if not issubclass(policy_class, expected):
+        held = next((a for a, c in (("ppo", ActorCriticPolicy), ("sac", SACPolicy)) if issubclass(policy_class, c)),
+                    None)
+        what = (f"a {held.upper()} model ({policy_class.__name__})" if held
+                else f"a model of another algorithm ({policy_class.__name__}: neither PPO nor SAC)")
+        if isinstance(data.get(META_KEY), dict):
+            why = f"its {META_KEY} says algorithm {algo!r}, but it holds {what}"
+        else:
+            why = (f"it holds {what} and no {META_KEY} (without it a zip is read as a parameter-shared PPO "
+                   "model on the default environment settings)")
+        raise ValueError(f"{path}: {why}; accepted: {_ACCEPTED}")
     from stable_baselines3 import PPO, SAC
 
     cls = PPO if algo == "ppo" else SAC
-    model = cls.load(str(path), device="cpu")
+    try:
+        model = cls.load(str(path), device="cpu")
+    except Exception as error:  # a file that reads as SB3 but whose parts do not fit together
+        raise ValueError(f"{path}: cannot be loaded as a {algo.upper()} model ({type(error).__name__}: {error}); "
+                         f"accepted: {_ACCEPTED}") from None
     return model, meta
 
 

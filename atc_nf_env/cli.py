@@ -184,7 +184,8 @@ def _add_evaluate_options(parser: argparse.ArgumentParser) -> None:
     _add_episode_options(parser)
     parser.add_argument("--runs", type=_positive_int, default=100,
                         help="number of episodes (seeds SEED..SEED+RUNS-1)")
-    parser.add_argument("--workers", type=_positive_int, help="worker processes (default: all cores)")
+    parser.add_argument("--workers", type=_positive_int,
+                        help="worker processes (default and most: the usable cores; never more than the runs left)")
     parser.add_argument("--backend", choices=BACKENDS, default="local", help="local processes or a Ray cluster")
     parser.add_argument("--out", type=Path, help="JSON-lines file receiving every finished run")
     parser.add_argument("--resume", action="store_true", help="finish the study in --out, skipping runs already there")

@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from atc_nf_env.config import SimConfig
 from atc_nf_env.metrics import RunMetrics, run_metrics
 from atc_nf_env.policy import Policy
-from atc_nf_env.scenarios import Scenario, check_seed
+from atc_nf_env.scenarios import Scenario, check_seed, make_scenario
 from atc_nf_env.simulation import Simulation, sample_wind_kt
 from atc_nf_env.units import DECISION_PERIOD_S, WIND_SIGMA_MPS
 
@@ -20,6 +23,30 @@ MAX_EPISODE_S: float = 4 * 3600.0
 #: Longest time limit accepted, s: no aircraft stays airborne a day, and a longer limit
 #: would let an NF holding orbit fly (and a study run) for ever.
 MAX_TIME_LIMIT_S: float = 24 * 3600.0
+
+
+class LayoutSeedWarning(UserWarning):
+    """A random encounter drawn with one seed is flown with another: its layout is the one
+    of the seed it was drawn with, so a loop over seeds would fly one layout in many winds."""
+
+
+def scenario_for_seed(scenario: Scenario | str | Mapping[str, Any], seed: int | None) -> Scenario:
+    """The ``Scenario`` that a run with ``seed`` flies: a name or dict is resolved with
+    ``make_scenario(scenario, seed=seed)`` (a ``random-N`` name is drawn with the run's
+    seed, as the evaluator does); a ``Scenario`` is flown as it is, with a
+    ``LayoutSeedWarning`` when it is a random encounter drawn with another seed."""
+    if not isinstance(scenario, Scenario):
+        return make_scenario(scenario, seed=0 if seed is None else seed)
+    drawn_with = scenario.metadata.get("seed") if isinstance(scenario.metadata, dict) else None
+    if drawn_with is not None and seed is not None and drawn_with != seed:
+        warnings.warn(
+            f"{scenario.name!r} was drawn with seed {drawn_with} and is flown with seed {seed}: the layout is seed "
+            f"{drawn_with}'s, only the wind is seed {seed}'s. Pass the name ({scenario.name!r}) to draw each run's "
+            "layout with its seed, as the evaluator does.",
+            LayoutSeedWarning,
+            stacklevel=3,
+        )
+    return scenario
 
 
 @dataclass
@@ -99,7 +126,7 @@ def whole_steps(name: str, seconds: float, dt_s: float) -> int:
 
 def run_episode(
     policy: Policy,
-    scenario: Scenario,
+    scenario: Scenario | str | Mapping[str, Any],
     *,
     seed: int | None = 0,
     wind_sigma_mps: float = WIND_SIGMA_MPS,
@@ -114,8 +141,14 @@ def run_episode(
 
     Args:
         policy: any object of the ``Policy`` interface.
-        scenario: the encounter.
-        seed: seeds the wind (unless ``wind_kt`` is given) and the policy.
+        scenario: the encounter: a ``Scenario``, or anything ``make_scenario`` resolves (a
+            name such as ``"random-6"``, a dict, a .json path), resolved with ``seed``: a
+            ``random-N`` name is drawn with this run's seed, as the evaluator does. A
+            ``Scenario`` is flown as given; one drawn by ``random_encounter`` with another
+            seed than ``seed`` flies with a ``LayoutSeedWarning`` (its layout is the seed
+            it was drawn with, only the wind follows ``seed``).
+        seed: seeds the wind (unless ``wind_kt`` is given), the policy and, for a
+            ``random-N`` name, the layout.
         wind_sigma_mps: standard deviation of each wind component, m/s.
         wind_kt: a fixed wind (east, north) in kt instead of a sampled one.
         config: NF gains and integrator settings.
@@ -128,6 +161,7 @@ def run_episode(
             integration steps (refused before anything flies), or any other bad setting.
     """
     config = config or SimConfig()
+    scenario = scenario_for_seed(scenario, seed)
     period_steps = whole_steps("period_s", period_s, config.dt_s)
     limit_steps = whole_steps("max_time_s", max_time_s, config.dt_s)
     wind = episode_wind_kt(seed, wind_sigma_mps) if wind_kt is None else wind_kt  # Simulation checks it

@@ -8,18 +8,31 @@ is appended to a JSON-lines file as soon as it ends, so an interrupted study res
 with ``resume=True`` loses nothing and repeats nothing.
 
 File format: the first line is a header naming the study (policy, scenario, wind,
-settings); every other line is one run's metrics (``RunMetrics.to_dict()``) with the
+settings) and identifying what was flown by content (``Study.header``: the scenario as
+flown, the model file's bytes, the build fingerprint of the code), so that a resume can
+never mix two studies; every other line is one run's metrics (``RunMetrics.to_dict()``) with the
 policy's diagnostics under ``policy_info`` and the worker's peak memory under
 ``peak_rss_mb`` and, for the process's first run of the study, the untimed warm-up
 before it under ``compile_s`` (0 for later runs).
+
+One process writes a results file at a time: ``evaluate`` holds an OS lock on it
+(``fcntl.flock``) for the whole study and refuses a file another study holds. Worker
+processes die with the process that started them (Linux: ``PR_SET_PDEATHSIG``; elsewhere
+a watchdog thread), so a killed study leaves no orphan behind.
 """
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import json
 import os
+import signal
+import stat
 import sys
+import threading
+import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
@@ -31,12 +44,48 @@ from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import MAX_EPISODE_S, run_episode, warm_up, whole_steps
 from atc_nf_env.metrics import RunMetrics, peak_rss_mb, summarize
 from atc_nf_env.policy import Policy, make_policy  # (re-exported: the evaluator resolves policies by name)
-from atc_nf_env.scenarios import MAX_SEED, make_scenario
+from atc_nf_env.scenarios import MAX_SEED, Scenario, draws_per_seed, make_scenario
 from atc_nf_env.shield import SafetyFilter, summarize_interventions
 from atc_nf_env.simulation import check_wind_sigma
 from atc_nf_env.units import WIND_SIGMA_MPS
 
 BACKENDS = ("local", "ray")
+
+#: Version of the results header. 2: the header identifies the scenario, the policy and
+#: the code by content (``scenario_identity``, ``policy_identity``, ``build``). Files of
+#: another version are not resumed.
+RESULTS_FORMAT = 2
+
+#: Header keys that only label the study for a reader (the path or name as given): a
+#: resume compares the identities instead, so that one file named by a relative or an
+#: absolute path is the same study.
+LABEL_KEYS = ("policy", "scenario")
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 (hex) of a file's bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _is_policy_file(spec: str) -> bool:
+    """Whether ``make_policy`` reads ``spec`` from a file (its suffix is a registered one)."""
+    from atc_nf_env.policy import POLICY_FILE_GROUP, _entry_points
+
+    suffix = Path(spec).suffix.lower().lstrip(".")
+    return bool(suffix) and suffix in _entry_points(POLICY_FILE_GROUP)
+
+
+def _plain(value: Any) -> Any:
+    """``json.dumps``'s fallback: numpy scalars and arrays as Python numbers and lists."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} {value!r} is not JSON serializable")
 
 
 @dataclass(frozen=True)
@@ -63,9 +112,23 @@ class Study:
     #: defaults); its counts go to each run's ``policy_info`` and the summary's ``shield``.
     shield: bool = False
 
+    #: The scenario as flown, resolved once here (a file is read once: every run flies what
+    #: the header identifies); None for a ``random-N`` name, drawn per run with its seed.
+    _fixed_scenario: Scenario | None = field(default=None, init=False, repr=False, compare=False)
+    #: SHA-256 of the model file when the policy is read from one.
+    _policy_sha256: str | None = field(default=None, init=False, repr=False, compare=False)
+    #: ``scenario_identity``'s text, computed once from the draw of seed 0.
+    _scenario_identity: str = field(default="", init=False, repr=False, compare=False)
+
     def __post_init__(self) -> None:
         SimConfig.preset(self.physics)  # a clear error on an unknown name
         check_wind_sigma(self.wind_sigma_mps)
+        # numpy scalars (np.float32(5.17)) become the Python float of the same value: the
+        # same number flies, and the header can be written as JSON.
+        for name in ("wind_sigma_mps", "max_time_s", "airspeed_every_s"):
+            value = getattr(self, name)
+            if isinstance(value, (np.floating, np.integer)) and not isinstance(value, np.bool_):
+                object.__setattr__(self, name, value.item())
         if not isinstance(self.shield, bool):
             raise TypeError(f"shield = {self.shield!r}: must be True or False")
         if not isinstance(self.policy_kwargs, dict):
@@ -76,7 +139,53 @@ class Study:
             whole_steps("airspeed_every_s", self.airspeed_every_s, SimConfig.preset(self.physics).dt_s)
         # Fail before any worker starts on a bad name or setting.
         self.make_policy()
-        make_scenario(self.scenario, seed=0)
+        scenario = make_scenario(self.scenario, seed=0)
+        if draws_per_seed(self.scenario):
+            identity = f"{self.scenario} per seed, seed 0 sha256:{scenario.content_sha256()}"
+        else:
+            object.__setattr__(self, "_fixed_scenario", scenario)
+            identity = f"fixed sha256:{scenario.content_sha256()}"
+        object.__setattr__(self, "_scenario_identity", identity)
+        if isinstance(self.policy, str) and _is_policy_file(self.policy):
+            object.__setattr__(self, "_policy_sha256", file_sha256(self.policy))
+
+    def scenario_for(self, seed: int) -> Scenario:
+        """The scenario that the run with ``seed`` flies."""
+        if self._fixed_scenario is not None:
+            return self._fixed_scenario
+        return make_scenario(self.scenario, seed=seed)
+
+    def scenario_identity(self) -> str:
+        """What the study's scenario flies, by content: ``fixed sha256:H`` for one encounter
+        (H: ``Scenario.content_sha256``, whether it came from a name, a dict or a file), or
+        ``random-N per seed, seed 0 sha256:H`` for a family drawn with each run's seed (the
+        generator's code is in the build fingerprint)."""
+        return self._scenario_identity
+
+    def policy_identity(self) -> str:
+        """What the study's policy is, by content: its name for a named policy (its code is
+        in the build fingerprint), or ``file sha256:H`` of a model file's bytes."""
+        if self._policy_sha256 is not None:
+            return f"file sha256:{self._policy_sha256}"
+        return f"name {self.policy}"
+
+    def check_policy_file_unchanged(self) -> None:
+        """Raise ValueError if the model file no longer holds the bytes the study started with."""
+        if self._policy_sha256 is None:
+            return
+        path = Path(self.policy)
+        try:
+            info = path.stat()
+        except OSError as error:
+            raise ValueError(f"model file {self.policy}: {error.strerror} (it was there when the study started)") from None
+        key = (str(path.resolve()), info.st_mtime_ns, info.st_size)
+        if _checked_policy_files.get(key) is None:
+            _checked_policy_files[key] = file_sha256(path)
+        if _checked_policy_files[key] != self._policy_sha256:
+            raise ValueError(
+                f"model file {self.policy} changed during the study (sha256 {_checked_policy_files[key][:12]}…, "
+                f"the study started with {self._policy_sha256[:12]}…); its runs would mix two models"
+            )
 
     def make_policy(self) -> Policy:
         """The study's policy (inside the safety filter when ``shield``)."""
@@ -84,10 +193,18 @@ class Study:
         return SafetyFilter(policy) if self.shield else policy
 
     def header(self) -> dict[str, Any]:
+        """The results file's first line: what the study is and, by content, what it flies.
+
+        ``policy`` and ``scenario`` label it as given (``LABEL_KEYS``); ``policy_identity``,
+        ``scenario_identity`` and ``build`` (``atc_nf_env.build.fingerprint``: the code and
+        the numerical libraries) identify it, with every setting below."""
         return {
             "type": "header",
+            "format": RESULTS_FORMAT,
             "policy": self.policy,
-            "scenario": self.scenario,
+            "scenario": self.scenario if isinstance(self.scenario, str) else self.scenario_for(0).name,
+            "policy_identity": self.policy_identity(),
+            "scenario_identity": self.scenario_identity(),
             "wind_sigma_mps": self.wind_sigma_mps,
             "policy_kwargs": self.policy_kwargs,
             "max_time_s": self.max_time_s,
@@ -101,6 +218,8 @@ class Study:
 
 #: Studies this process has warmed up for (numba compiled or loaded, policy's first call).
 _warmed_up: set[str] = set()
+#: SHA-256 of model files read by this process, by (resolved path, mtime, size).
+_checked_policy_files: dict[tuple[str, int, int], str] = {}
 
 
 def run_one(study: Study, seed: int) -> dict[str, Any]:
@@ -109,12 +228,13 @@ def run_one(study: Study, seed: int) -> dict[str, Any]:
     The first run of a study in a process first flies an untimed warm-up (``warm_up``)
     and reports its duration as ``compile_s``; later runs in that process report 0.
     """
+    study.check_policy_file_unchanged()
     policy = study.make_policy()
-    scenario = make_scenario(study.scenario, seed=seed)
+    scenario = study.scenario_for(seed)
     record_every = 1 if study.airspeed_every_s else 0
     config = SimConfig.preset(study.physics)
     compile_s = 0.0
-    key = json.dumps(study.header(), sort_keys=True, default=str)
+    key = repr(study)
     if key not in _warmed_up:
         compile_s = warm_up(policy, scenario, seed=seed, wind_sigma_mps=study.wind_sigma_mps,
                             config=config, record_every=record_every)
@@ -183,11 +303,50 @@ def _step_trace(result: Any, scenario: Any, every_s: float) -> dict[str, Any]:
     }
 
 
-def _worker_init() -> None:
+def _worker_init(parent_pid: int | None = None) -> None:
     # Parallelism is across runs: one numba thread per worker avoids oversubscription.
     import numba
 
     numba.set_num_threads(1)
+    if parent_pid is not None:
+        die_with_parent(parent_pid)
+
+
+#: Seconds between two looks of the watchdog thread at the worker's parent.
+WATCHDOG_PERIOD_S = 0.5
+#: Linux's prctl option that sends the calling process a signal when its parent dies.
+_PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """Make this worker process end when ``parent_pid`` (the study's process) ends, however
+    it ends (SIGKILL included): a worker holds ~200 MB and the parent's stdout, so an
+    orphan would keep memory and keep a ``| cat`` pipeline open for ever.
+
+    On Linux the kernel sends SIGKILL at the parent's death (``PR_SET_PDEATHSIG``, set
+    through ``ctypes``); everywhere, a daemon thread looks at ``os.getppid()`` every
+    ``WATCHDOG_PERIOD_S`` and ends the process when it is no longer ``parent_pid`` (for
+    platforms without prctl, and for a parent that died before prctl was set). The worker
+    writes nothing of its own: the parent writes every finished run, so ending it loses
+    only the run it was flying."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - a libc without prctl
+            pass
+    if os.getppid() != parent_pid:
+        os._exit(1)  # the parent died before prctl was set
+
+    def watch() -> None:
+        while True:
+            time.sleep(WATCHDOG_PERIOD_S)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="atc-nf-parent-watchdog", daemon=True).start()
 
 
 #: Said when a worker process dies before running anything: the usual cause is a script
@@ -220,7 +379,8 @@ def _run_local(study: Study, seeds: Iterator[int], workers: int) -> Iterator[dic
     context = mp.get_context("spawn")
     finished = 0
     seeds = iter(seeds)
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init,
+                             initargs=(os.getpid(),)) as pool:
         # Runs are planned lazily, two per worker ahead: memory does not grow with ``runs``.
         pending = {pool.submit(run_one, study, seed) for seed in itertools.islice(seeds, 2 * workers)}
         while pending:
@@ -253,7 +413,7 @@ def _run_ray(study: Study, seeds: Iterator[int], workers: int) -> Iterator[dict[
 
     @ray.remote(num_cpus=1)
     def remote_run(seed: int) -> dict[str, Any]:
-        _worker_init()
+        _worker_init()  # Ray's workers belong to Ray, which ends them
         return run_one(study, seed)
 
     try:
@@ -283,12 +443,15 @@ def _problem_of_run(record: Any) -> str | None:
     return None
 
 
-def _scan_results(path: Path) -> tuple[dict[str, Any] | None, list[dict[str, Any]], int]:
-    """(header, runs, intact_bytes) of a results file; ``intact_bytes`` ends the last intact
-    line, so that a last line damaged by an interruption (cut off, with or without its
-    newline) can be dropped. A damaged line anywhere else, a file that does not start
-    with the header, or a seed written twice raises ValueError."""
-    data = path.read_bytes()
+def _scan_results(path: Path, data: bytes | None = None) -> tuple[dict[str, Any] | None, list[dict[str, Any]], int]:
+    """(header, runs, intact_bytes) of a results file (of its bytes ``data`` when given);
+    ``intact_bytes`` ends the last intact line, so that a last line damaged by an
+    interruption (cut off, with or without its newline) can be dropped. A damaged line
+    anywhere else, a file that does not start with the header, or a seed written twice
+    raises ValueError."""
+    if data is None:
+        _check_regular_file(path)
+        data = path.read_bytes()
     lines = data.split(b"\n")
     # The index of the last line holding anything: only that one may be damaged.
     last = max((k for k, line in enumerate(lines) if line.strip()), default=-1)
@@ -342,6 +505,110 @@ def read_results(path: Path) -> tuple[dict[str, Any] | None, list[dict[str, Any]
     return header, runs
 
 
+def _check_regular_file(path: Path, option: str = "results file") -> None:
+    """ValueError unless ``path`` is a regular file or does not exist: a device such as
+    /dev/zero would be read for ever, a FIFO would block, /dev/full fails every write."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return
+    if stat.S_ISDIR(mode):
+        raise ValueError(f"{option} {path} is a directory; give the path of a .jsonl file")
+    if not stat.S_ISREG(mode):
+        raise ValueError(
+            f"{option} {path} is not a regular file (a device, FIFO or socket); give the path of a .jsonl file "
+            "that is a regular file or does not exist yet"
+        )
+
+
+class ResultsFile:
+    """A results file held by one study: opened (created when missing), checked to be a
+    regular file, and locked (``fcntl.flock``, exclusive) until ``close``, so that no other
+    process writes it meanwhile; every append is made durable before the next (``fsync``).
+
+    Raises:
+        ValueError: ``path`` is not a regular file, or another process holds its lock
+            (a study writing it now).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        _check_regular_file(path)
+        flags = (os.O_RDWR | os.O_CREAT | os.O_APPEND | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+                 | getattr(os, "O_BINARY", 0))
+        try:
+            # O_NONBLOCK: a FIFO put in its place since the check above is not waited on.
+            self.fd = os.open(path, flags, 0o644)
+        except OSError as error:
+            raise ValueError(f"results file {path}: cannot open it: {error.strerror}") from None
+        try:
+            if not stat.S_ISREG(os.fstat(self.fd).st_mode):
+                raise ValueError(f"results file {path} is not a regular file; give the path of a .jsonl file")
+            if hasattr(os, "set_blocking"):
+                os.set_blocking(self.fd, True)
+            self._lock()
+        except BaseException:
+            os.close(self.fd)
+            raise
+
+    def _lock(self) -> None:
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX: no lock
+            return
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ValueError(
+                f"results file {self.path} is being written by another study (another process holds its lock): "
+                "one study writes a file at a time; wait for it to end, or choose another file"
+            ) from None
+
+    def read(self) -> bytes:
+        """The file's bytes."""
+        size = os.fstat(self.fd).st_size
+        os.lseek(self.fd, 0, os.SEEK_SET)  # appends go to the end whatever the offset (O_APPEND)
+        chunks, offset = [], 0
+        while offset < size:
+            chunk = os.read(self.fd, min(size - offset, 1 << 24))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            offset += len(chunk)
+        return b"".join(chunks)
+
+    def size(self) -> int:
+        return os.fstat(self.fd).st_size
+
+    def append(self, data: bytes) -> None:
+        """Append ``data`` and make it durable (a kill loses at most the line being written,
+        which resume drops). An OSError (a full disk: ENOSPC) names the file."""
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(self.fd, view):]
+            os.fsync(self.fd)
+        except OSError as error:
+            raise OSError(error.errno, f"cannot write the results file: {error.strerror}", str(self.path)) from None
+
+    def append_line(self, record: dict[str, Any]) -> None:
+        """Append one JSON line (numpy scalars written as Python numbers)."""
+        self.append((json.dumps(record, allow_nan=False, default=_plain) + "\n").encode())
+
+    def truncate(self, size: int) -> None:
+        try:
+            os.ftruncate(self.fd, size)
+            os.fsync(self.fd)
+        except OSError as error:
+            raise OSError(error.errno, f"cannot write the results file: {error.strerror}", str(self.path)) from None
+
+    def close(self) -> None:
+        """Release the lock and close the file."""
+        if self.fd >= 0:
+            os.close(self.fd)  # closing the last descriptor releases the flock
+            self.fd = -1
+
+
 def _metrics_from(record: dict[str, Any]) -> RunMetrics:
     names = RunMetrics.__dataclass_fields__
     return RunMetrics(**{key: record[key] for key in names})
@@ -364,10 +631,18 @@ def evaluate(
     Args:
         study: policy, scenario and wind of the study.
         runs: number of episodes, seeds ``first_seed`` … ``first_seed + runs − 1``.
-        workers: processes (local) or CPUs (Ray); all cores by default.
+        workers: processes (local) or CPUs (Ray); all cores by default. The local backend
+            starts at most as many processes as there are runs left and as this process
+            may use CPUs (``os.sched_getaffinity``): the runs are CPU-bound, so more
+            processes only share the CPUs and cost ~200 MB each; a larger ``workers`` is
+            lowered with a warning.
         backend: "local" or "ray".
         out: JSON-lines file that receives every finished run; required for ``resume``.
-        resume: keep the runs already in ``out`` and run only the missing seeds.
+            A regular file or a path that does not exist yet; it is locked for the whole
+            study (a second study on it is refused).
+        resume: keep the runs already in ``out`` and run only the missing seeds; refused
+            unless ``out``'s header identifies the same study by content (same scenario
+            as flown, same model bytes, same code and libraries, same settings).
         progress: show a progress bar on stderr.
         on_run: called with each finished run's record (after it is written).
 
@@ -379,10 +654,11 @@ def evaluate(
         ``compile_s``.
     """
     for name, value, least in (("runs", runs, 1), ("first_seed", first_seed, 0)):
-        if isinstance(value, bool) or not isinstance(value, int):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
             raise TypeError(f"{name} = {value!r}: must be an integer >= {least}")
         if value < least:
             raise ValueError(f"{name} = {value!r}: must be an integer >= {least}")
+    runs, first_seed = int(runs), int(first_seed)
     if first_seed + runs > MAX_SEED + 1:
         raise ValueError(
             f"runs = {runs}, first_seed = {first_seed}: seeds run to {first_seed + runs - 1}; every seed must be "
@@ -390,61 +666,99 @@ def evaluate(
         )
     if backend not in BACKENDS:
         raise ValueError(f"backend = {backend!r}: allowed: {', '.join(BACKENDS)}")
-    workers = (os.cpu_count() or 1) if workers is None else workers
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+    asked = workers
+    workers = usable_cpus() if workers is None else workers
+    if isinstance(workers, (bool, np.bool_)) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ValueError(f"workers = {workers!r}: must be an integer >= 1")
+    workers = int(workers)
+    if backend == "local" and workers > usable_cpus():
+        warnings.warn(
+            f"workers = {asked}: this process may use {usable_cpus()} CPUs; starting at most {usable_cpus()} worker "
+            "processes (the runs are CPU-bound: more would share the CPUs and cost ~200 MB each)",
+            stacklevel=2,
+        )
+        workers = usable_cpus()
     if resume and out is None:
         raise ValueError("resume needs the results file (out) of the interrupted study")
     _check_not_bootstrapping()
 
     header = study.header()
+    results: ResultsFile | None = None
     done: dict[int, dict[str, Any]] = {}
     if out is not None:
         out = Path(out)
-        if out.is_dir():
-            raise ValueError(f"out = {str(out)!r} is a directory; give the path of a .jsonl file")
+        _check_regular_file(out)  # before a folder is made or anything read
         out.parent.mkdir(parents=True, exist_ok=True)
-        old_header, old_runs, intact = _scan_results(out) if out.exists() else (None, [], 0)
-        if out.exists() and out.stat().st_size and not resume:
-            raise ValueError(
-                f"{out} already holds a study; finish it with --resume (resume=True in Python), or choose another file"
-            )
-        if old_header is not None and old_header.get("build") != header["build"]:
-            raise ValueError(
-                f"{out} holds runs of another build ({old_header.get('build')!r}; this one is "
-                f"{header['build']!r}): the sources or libraries that fly a run changed since, so its "
-                "runs cannot be resumed; fly the study again into a new file"
-            )
-        if old_header is not None:
-            _check_same_study(out, old_header, header, [int(r["seed"]) for r in old_runs], first_seed, runs)
-        # Runs beyond this study's seeds (a longer study in the same file) stay in the
-        # file but not in this summary, which covers first_seed … first_seed + runs − 1.
-        done = {int(r["seed"]): r for r in old_runs if r["seed"] < first_seed + runs}
-        if out.exists() and intact < out.stat().st_size:
-            _truncate(out, intact)  # a last line damaged by the interruption
-        if intact and not out.read_bytes().endswith(b"\n"):
-            _append_bytes(out, b"\n")  # an intact last line whose newline the interruption cut
-        if old_header is None:
-            _append_line(out, header)
-    # Planned lazily: a huge ``runs`` costs nothing until its runs finish.
-    seeds = (s for s in range(first_seed, first_seed + runs) if s not in done)
-    records = list(done.values())
-    todo = runs - len(done)
-
-    runner = _run_ray if backend == "ray" else _run_local
-    stream: Iterable[dict[str, Any]] = runner(study, seeds, min(workers, todo)) if todo else []
-    bar = _progress_bar(total=runs, initial=len(records), enabled=progress)
+        results = ResultsFile(out)  # locked from here to the end of the study
     try:
-        for record in stream:
-            if out is not None:
-                _append_line(out, record)
-            records.append(record)
-            if on_run is not None:
-                on_run(record)
-            bar.update(1)
+        if results is not None:
+            done = _take_over(results, header, resume, first_seed, runs)
+        # Planned lazily: a huge ``runs`` costs nothing until its runs finish.
+        seeds = (s for s in range(first_seed, first_seed + runs) if s not in done)
+        records = list(done.values())
+        todo = runs - len(done)
+
+        runner = _run_ray if backend == "ray" else _run_local
+        stream: Iterable[dict[str, Any]] = runner(study, seeds, min(workers, todo)) if todo else []
+        bar = _progress_bar(total=runs, initial=len(records), enabled=progress)
+        try:
+            for record in stream:
+                if results is not None:
+                    results.append_line(record)
+                records.append(record)
+                if on_run is not None:
+                    on_run(record)
+                bar.update(1)
+        finally:
+            bar.close()
     finally:
-        bar.close()
+        if results is not None:
+            results.close()
     return summarize_records(records)
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity where the OS tells it, else the count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _take_over(results: ResultsFile, header: dict[str, Any], resume: bool, first_seed: int,
+               runs: int) -> dict[int, dict[str, Any]]:
+    """Check a locked results file against the study and prepare it for appending: its
+    runs of this study's seeds, by seed (none for a new file, whose header it writes)."""
+    out = results.path
+    data = results.read()
+    if data and not resume:
+        raise ValueError(
+            f"{out} already holds a study; finish it with --resume (resume=True in Python), or choose another file"
+        )
+    old_header, old_runs, intact = _scan_results(out, data)
+    if old_header is not None and old_header.get("format") != header["format"]:
+        raise ValueError(
+            f"{out} was written by an older atc-nf evaluate (results format {old_header.get('format', 1)!r}; this one "
+            f"writes {header['format']}), whose header does not identify the scenario and model by content: it "
+            "cannot be resumed safely; fly the study again into a new file"
+        )
+    if old_header is not None and old_header.get("build") != header["build"]:
+        raise ValueError(
+            f"{out} holds runs of another build ({old_header.get('build')!r}; this one is "
+            f"{header['build']!r}): the code or libraries that fly a run changed since, so its "
+            "runs cannot be resumed; fly the study again into a new file"
+        )
+    if old_header is not None:
+        _check_same_study(out, old_header, header, [int(r["seed"]) for r in old_runs], first_seed, runs)
+    if intact < len(data):
+        results.truncate(intact)  # a last line damaged by the interruption
+    if intact and not data[:intact].endswith(b"\n"):
+        results.append(b"\n")  # an intact last line whose newline the interruption cut
+    if old_header is None:
+        results.append_line(header)
+    # Runs beyond this study's seeds (a longer study in the same file) stay in the
+    # file but not in this summary, which covers first_seed … first_seed + runs − 1.
+    return {int(r["seed"]): r for r in old_runs if r["seed"] < first_seed + runs}
 
 
 def _check_same_study(
@@ -452,7 +766,7 @@ def _check_same_study(
 ) -> None:
     """Refuse to resume a file of another study, or of the same study from another first
     seed: one file holds one range of seeds from one first seed, never two ranges."""
-    differing = [key for key in new if old.get(key) != new[key]]
+    differing = [key for key in new if key not in LABEL_KEYS and old.get(key) != new[key]]
     if differing:
         described = ", ".join(f"{key} {old.get(key)!r} there, {new[key]!r} here" for key in differing[:3])
         raise ValueError(f"{out} holds a different study ({described}); cannot resume it")
@@ -461,26 +775,6 @@ def _check_same_study(
             f"{out} holds the study from seed {min(seeds)}, not {first_seed}: resuming would mix two ranges of "
             "seeds in one file; resume with the --seed the study was started with, or choose another file"
         )
-
-
-def _append_line(path: Path, record: dict[str, Any]) -> None:
-    """Append one JSON line and make it durable before going on (a kill loses at most the
-    line being written, which resume drops)."""
-    _append_bytes(path, (json.dumps(record, allow_nan=False) + "\n").encode())
-
-
-def _append_bytes(path: Path, data: bytes) -> None:
-    with path.open("ab") as handle:
-        handle.write(data)
-        handle.flush()
-        os.fsync(handle.fileno())
-
-
-def _truncate(path: Path, size: int) -> None:
-    with path.open("r+b") as handle:
-        handle.truncate(size)
-        handle.flush()
-        os.fsync(handle.fileno())
 
 
 def summarize_records(records: list[dict[str, Any]]) -> dict[str, Any]:

@@ -8,9 +8,12 @@ headings are given in degrees, with the same convention.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import os
 import re
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -18,6 +21,12 @@ from typing import Any, Mapping
 import numpy as np
 
 from atc_nf_env.units import AIRCRAFT_RADIUS_NM, AIRSPEED_NOMINAL_KT, SEPARATION_MIN_NM
+
+#: Largest heading accepted, in degrees (dicts and JSON files) and radians (``Scenario``):
+#: one turn either way. Any direction is within it; a larger value is a mistake (1e308
+#: degrees once flew a 500-nm trip as 1,063 nm).
+MAX_HEADING_DEG: float = 360.0
+MAX_HEADING_RAD: float = math.radians(MAX_HEADING_DEG)
 
 #: Radius of the paper's converging encounters, nm.
 ENCOUNTER_RADIUS_NM: float = 250.0
@@ -71,6 +80,27 @@ class Scenario:
         """A scenario from a JSON file holding ``to_dict``'s dict."""
         return scenario_from_json(path)
 
+    def canonical_json(self) -> str:
+        """What this scenario flies, as a canonical JSON text: the initial conditions at full
+        precision (positions nm, headings rad, airspeed kt, workspace radius nm), without the
+        ``name`` and ``metadata`` labels, which change nothing that flies. Equal texts fly
+        the same encounter."""
+        flown = {
+            "start_xy": self.start_xy.tolist(),
+            "start_heading": self.start_heading.tolist(),
+            "dest_xy": self.dest_xy.tolist(),
+            "dest_heading": self.dest_heading.tolist(),
+            "start_airspeed_kt": float(self.start_airspeed_kt),
+            "workspace_radius_nm": float(self.workspace_radius_nm),
+        }
+        # json writes each float as its shortest round-trip repr: equal texts, equal bits.
+        return json.dumps(flown, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+    def content_sha256(self) -> str:
+        """SHA-256 (hex) of ``canonical_json``: identifies the encounter by what it flies, not
+        by where it was read from."""
+        return hashlib.sha256(self.canonical_json().encode()).hexdigest()
+
     def to_dict(self) -> dict[str, Any]:
         """The scenario as a JSON-ready dict (headings in degrees), read back by ``Scenario.from_dict``."""
         return {
@@ -103,6 +133,15 @@ def validate_scenario(scenario: Scenario) -> None:
     for name in ("start_xy", "start_heading", "dest_xy", "dest_heading"):
         if not np.isfinite(getattr(scenario, name)).all():
             raise ValueError(f"{name} contains NaN or inf: {getattr(scenario, name).tolist()}")
+    for name in ("start_heading", "dest_heading"):
+        headings = getattr(scenario, name)
+        beyond = np.flatnonzero(np.abs(headings) > MAX_HEADING_RAD)
+        if beyond.size:
+            i = int(beyond[0])
+            raise ValueError(
+                f"{name}[{i}] = {headings[i]!r} rad: must be in [-2*pi, 2*pi] (one turn either way; a heading "
+                "beyond is the same direction written with whole turns added)"
+            )
     radius = scenario.workspace_radius_nm
     if not (math.isfinite(radius) and radius > 0):
         raise ValueError(f"workspace_radius_nm = {radius!r}: must be a finite number > 0")
@@ -151,6 +190,39 @@ def converging(n: int, radius_nm: float = ENCOUNTER_RADIUS_NM, **kwargs: Any) ->
     )
 
 
+#: Layouts ``random_encounter`` draws independently before it builds one spaced (below).
+RANDOM_DRAWS: int = 10_000
+
+
+def _gap_angle(radius_nm: float, separation_nm: float) -> float:
+    """Angle (rad) between two points of a circle of ``radius_nm`` whose chord is
+    ``separation_nm``, plus a margin of rounding."""
+    return 2.0 * math.asin(min(1.0, separation_nm / (2.0 * radius_nm))) * (1.0 + 1e-9)
+
+
+def max_random_aircraft(radius_nm: float = ENCOUNTER_RADIUS_NM, min_separation_nm: float = 20.0) -> int:
+    """The most aircraft that ``random_encounter`` can place on a circle of ``radius_nm``
+    with starts (and destinations) ``min_separation_nm`` apart: whole gaps of the chord's
+    angle in one turn."""
+    return max(1, int(2.0 * math.pi / _gap_angle(radius_nm, min_separation_nm)))
+
+
+def _spaced_angles(rng: np.random.Generator, n: int, gap: float, deviation: float) -> tuple[np.ndarray, np.ndarray]:
+    """(start, destination) angles (rad) of ``n`` aircraft, starts at least ``gap + 2 e``
+    apart, each destination opposite its start turned by a common δ0 in ±(deviation − e)
+    plus its own u in ±e: destinations are then at least ``gap`` apart too (moving each point
+    by at most e changes a circular distance by at most 2 e) and every δ0 + u is within
+    ±deviation. The starts are uniform among those so spaced (uniform spare arc split by a
+    Dirichlet draw, a uniform rotation, aircraft in random order)."""
+    spare = 2.0 * math.pi - n * gap
+    e = min(deviation, spare / (2.0 * n)) / 2.0
+    gaps = gap + 2.0 * e + rng.dirichlet(np.ones(n)) * (spare - 2.0 * n * e)
+    angles = rng.uniform(-np.pi, np.pi) + np.concatenate(([0.0], np.cumsum(gaps)[:-1]))
+    start_angles = rng.permutation(np.mod(angles + np.pi, 2.0 * np.pi) - np.pi)
+    turn = rng.uniform(-(deviation - e), deviation - e) + rng.uniform(-e, e, n)
+    return start_angles, start_angles + np.pi + turn
+
+
 def random_encounter(
     n: int,
     seed: int,
@@ -164,8 +236,12 @@ def random_encounter(
     Each aircraft starts on the circle of ``radius_nm`` at a uniformly random angle a,
     heading for its destination on the same circle at angle a + π + δ, with δ uniform in
     ±``max_deviation_deg``; starts and destinations are at least ``min_separation_nm``
-    apart. Raises ValueError if no such configuration is found (too many aircraft for
-    the separation asked).
+    apart. Every seed gives a layout: layouts are drawn independently until one is so
+    spread, and when ``RANDOM_DRAWS`` draws give none (crowded circles: random-18 needs
+    more for a few seeds in ten) one is built spaced from the same seeded stream
+    (``_spaced_angles``: its starts are uniform among spaced ones, its turns share a common
+    part). Raises ValueError, naming n and the limit, when n aircraft cannot be that far
+    apart on the circle (``max_random_aircraft``: 78 at the defaults).
     """
     if not isinstance(n, (int, np.integer)) or n < 1:
         raise ValueError(f"number of aircraft n = {n!r}: must be an integer >= 1")
@@ -176,8 +252,7 @@ def random_encounter(
             f"min_separation_nm = {min_separation_nm!r}: must be >= {SEPARATION_MIN_NM} nm"
         )
     rng = np.random.default_rng(_check_seed(seed))
-    # Points on a circle spaced by min_separation need n chords of that length.
-    max_n = int(2 * np.pi * radius_nm / min_separation_nm)
+    max_n = max_random_aircraft(radius_nm, min_separation_nm)
     if n > max_n:
         raise ValueError(
             f"n = {n} aircraft cannot start {min_separation_nm} nm apart on a circle of "
@@ -190,17 +265,19 @@ def random_encounter(
         sep = np.hypot(diff[..., 0], diff[..., 1]) + np.diag(np.full(n, np.inf))
         return bool(sep.min() >= min_separation_nm) if n > 1 else True
 
+    if not (math.isfinite(max_deviation_deg) and 0 <= max_deviation_deg <= 90):
+        raise ValueError(f"max_deviation_deg = {max_deviation_deg!r}: must be a number of degrees in [0, 90]")
     deviation = math.radians(max_deviation_deg)
-    for _ in range(10_000):
+    for _ in range(RANDOM_DRAWS):
         start_angles = rng.uniform(-np.pi, np.pi, n)
         dest_angles = start_angles + np.pi + rng.uniform(-deviation, deviation, n)
         if spread(start_angles) and spread(dest_angles):
             break
     else:
-        raise ValueError(
-            f"no random encounter of {n} aircraft with min_separation_nm = {min_separation_nm} "
-            "found in 10000 draws; ask for fewer aircraft or a smaller separation"
-        )
+        # Crowded circles: a layout built spaced, from the same stream of this seed.
+        start_angles, dest_angles = _spaced_angles(rng, n, _gap_angle(radius_nm, min_separation_nm), deviation)
+        if not (spread(start_angles) and spread(dest_angles)):  # pragma: no cover - the construction guarantees it
+            raise RuntimeError(f"random_encounter({n}, seed={seed}): the spaced layout is not spread")
     start = radius_nm * np.stack([np.cos(start_angles), np.sin(start_angles)], axis=1)
     dest = radius_nm * np.stack([np.cos(dest_angles), np.sin(dest_angles)], axis=1)
     heading = np.arctan2(dest[:, 1] - start[:, 1], dest[:, 0] - start[:, 0])
@@ -235,6 +312,27 @@ def check_seed(seed: Any, name: str = "seed") -> int:
 
 
 _check_seed = check_seed
+
+
+def _shown(value: Any, limit: int = 80) -> str:
+    """``repr(value)``, cut to ``limit`` characters: an error message quotes what it refuses,
+    not a megabyte of it."""
+    try:
+        text = repr(value)
+    except RecursionError:
+        text = f"a {type(value).__name__} nested too deeply to show"
+    except ValueError:  # an int too long to print (Python limits int-to-str conversions)
+        text = f"an integer of about {int(value.bit_length() * 0.30103)} digits"
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _as_float(value: Any, where: str, allowed: str) -> float:
+    """``value`` (a number) as a float, or ValueError naming ``where`` when it has no float
+    (an integer beyond 1.8e308)."""
+    try:
+        return float(value)
+    except OverflowError:
+        raise ValueError(f"{where} = {_shown(value)}: too large for a float; must be {allowed}") from None
 
 
 _ALLOWED_KEYS = {"name", "aircraft", "workspace_radius_nm", "start_airspeed_kt"}
@@ -272,25 +370,34 @@ def scenario_from_dict(data: Mapping[str, Any]) -> Scenario:
         for key in ("start", "destination"):
             value = entry.get(key)
             if not isinstance(value, (list, tuple)) or len(value) != 2 or not all(_is_number(v) for v in value):
-                raise ValueError(f"aircraft[{index}].{key} = {value!r}: must be [x, y] in nm")
-        start = np.array(entry["start"], dtype=float)
-        dest = np.array(entry["destination"], dtype=float)
+                raise ValueError(f"aircraft[{index}].{key} = {_shown(value)}: must be [x, y] in nm")
+        start = np.array([_as_float(v, f"aircraft[{index}].start", "[x, y] in nm") for v in entry["start"]])
+        dest = np.array([_as_float(v, f"aircraft[{index}].destination", "[x, y] in nm")
+                         for v in entry["destination"]])
         bearing = math.atan2(dest[1] - start[1], dest[0] - start[0])
+        turns = {}
         for key in ("heading_deg", "arrival_heading_deg"):
-            if key in entry and not _is_number(entry[key]):
-                raise ValueError(f"aircraft[{index}].{key} = {entry[key]!r}: must be a number of degrees")
+            if key not in entry:
+                turns[key] = bearing
+                continue
+            allowed = f"a finite number of degrees in [-{MAX_HEADING_DEG:g}, {MAX_HEADING_DEG:g}]"
+            if not _is_number(entry[key]):
+                raise ValueError(f"aircraft[{index}].{key} = {_shown(entry[key])}: must be {allowed}")
+            degrees = _as_float(entry[key], f"aircraft[{index}].{key}", allowed)
+            # NaN and inf go on to validate_scenario, which names the array holding them.
+            if math.isfinite(degrees) and abs(degrees) > MAX_HEADING_DEG:
+                raise ValueError(f"aircraft[{index}].{key} = {degrees!r}: must be {allowed}")
+            turns[key] = math.radians(degrees)
         starts.append(start)
         dests.append(dest)
-        headings.append(math.radians(entry["heading_deg"]) if "heading_deg" in entry else bearing)
-        arrivals.append(
-            math.radians(entry["arrival_heading_deg"]) if "arrival_heading_deg" in entry else bearing
-        )
+        headings.append(turns["heading_deg"])
+        arrivals.append(turns["arrival_heading_deg"])
     kwargs: dict[str, Any] = {}
     for key in ("workspace_radius_nm", "start_airspeed_kt"):
         if key in data:
             if not _is_number(data[key]):
-                raise ValueError(f"{key} = {data[key]!r}: must be a number")
-            kwargs[key] = float(data[key])
+                raise ValueError(f"{key} = {_shown(data[key])}: must be a number")
+            kwargs[key] = _as_float(data[key], key, "a finite number")
     return Scenario(
         name=str(data.get("name", "custom")),
         start_xy=np.array(starts),
@@ -304,18 +411,41 @@ def scenario_from_dict(data: Mapping[str, Any]) -> Scenario:
 def scenario_from_json(path: str | Path) -> Scenario:
     """A scenario from a JSON file holding ``scenario_from_dict``'s dict."""
     path = Path(path)
+    where = f"scenario file {str(path)!r}"
     try:
-        data = json.loads(path.read_text())
+        mode = os.stat(path).st_mode
     except FileNotFoundError:
-        raise ValueError(f"scenario file {str(path)!r} does not exist") from None
-    except json.JSONDecodeError as error:
-        raise ValueError(f"scenario file {str(path)!r} is not valid JSON: {error}") from None
+        raise ValueError(f"{where} does not exist") from None
     except OSError as error:
-        raise ValueError(f"scenario file {str(path)!r} cannot be read: {error.strerror}") from None
-    return scenario_from_dict(data)
+        raise ValueError(f"{where} cannot be read: {error.strerror}") from None
+    if not stat.S_ISREG(mode):
+        # A FIFO would block for ever, /dev/zero would fill the memory.
+        raise ValueError(f"{where} is not a regular file (a directory, device or pipe); give a .json file")
+    try:
+        data = json.loads(path.read_bytes().decode("utf-8"))
+    except OSError as error:
+        raise ValueError(f"{where} cannot be read: {error.strerror}") from None
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{where} is not UTF-8 text (byte {error.start}); a scenario is a UTF-8 JSON file") from None
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{where} is not valid JSON: {error}") from None
+    except RecursionError:
+        raise ValueError(f"{where}: JSON nested too deeply; a scenario is a dict of a list of dicts") from None
+    except ValueError as error:  # e.g. an integer of more digits than Python converts
+        raise ValueError(f"{where} cannot be read as JSON: {error}") from None
+    try:
+        return scenario_from_dict(data)
+    except ValueError as error:
+        raise ValueError(f"{where}: {error}") from None
 
 
 _NAME_PATTERN = re.compile(r"^(converging|random)-(\d+)$")
+
+
+def draws_per_seed(spec: Any) -> bool:
+    """Whether ``make_scenario(spec, seed)`` gives each seed its own layout (a ``random-N``
+    name) rather than one encounter whatever the seed."""
+    return isinstance(spec, str) and bool(_NAME_PATTERN.match(spec)) and spec.startswith("random-")
 
 
 def make_scenario(spec: str | Scenario | Mapping[str, Any], seed: int | None = None) -> Scenario:
