@@ -3,8 +3,10 @@
     python -m agents.benchmark --models agents/models/bc.zip,agents/models/dagger.zip --runs 200
 
 For every scenario and policy this runs ``atc_nf_env.evaluate.evaluate`` (the evaluator of
-``atc-nf evaluate``) on the held-out seeds 0..RUNS-1 (training used 10 000 and up, the
-imitation's quick checks 5 000..), keeps each study's runs in ``--out`` (JSON lines,
+``atc-nf evaluate``) on the seeds FIRST_SEED..FIRST_SEED+RUNS-1 (``--first-seed``, default 0;
+the shipped tables use 0..RUNS-1: training used 10 000 and up, the imitation's quick
+checks 5 000..; the benchmark suite's validation and test splits start at 10**9 and
+2·10**9, ``atc_nf_env.benchmark``), keeps each study's runs in ``--out`` (JSON lines,
 resumable: a rerun only flies what is missing), and writes the summaries (``--summary``)
 and the markdown table (``--table``); ``agents/results/`` holds those behind the model zoo
 table of ``agents/README.md`` (``python -m agents.zoo --write``).
@@ -40,9 +42,9 @@ def label_of(policy: str, shield: bool = False) -> str:
     return (Path(policy).stem if policy.endswith(".zip") else policy) + ("+shield" if shield else "")
 
 
-def reuse_mpc_runs(study: Study, runs: int, source_dir: Path, target: Path) -> int:
-    """Copy the MPC runs of seeds 0..runs-1 of ``study`` from ``source_dir`` into ``target``
-    (a new results file); returns how many were copied."""
+def reuse_mpc_runs(study: Study, runs: int, source_dir: Path, target: Path, first_seed: int = 0) -> int:
+    """Copy the MPC runs of seeds first_seed..first_seed+runs-1 of ``study`` from
+    ``source_dir`` into ``target`` (a new results file); returns how many were copied."""
     if target.exists():
         return 0
     header = study.header()
@@ -52,7 +54,7 @@ def reuse_mpc_runs(study: Study, runs: int, source_dir: Path, target: Path) -> i
             continue
         if any(old.get(k) != header[k] for k in header if k != "airspeed_every_s"):
             continue
-        chosen = sorted((r for r in records if r["seed"] < runs), key=lambda r: r["seed"])
+        chosen = sorted((r for r in records if first_seed <= r["seed"] < first_seed + runs), key=lambda r: r["seed"])
         if not chosen:
             continue
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -67,7 +69,7 @@ def reuse_mpc_runs(study: Study, runs: int, source_dir: Path, target: Path) -> i
 
 def run(models: list[str], scenarios: list[str], runs: int, mpc_runs: int, out: Path, reuse_mpc: Path | None,
         workers: int | None, progress: bool, baselines: Sequence[str] = ("nf", "mpc"),
-        shield: bool = False) -> dict[str, Any]:
+        shield: bool = False, first_seed: int = 0) -> dict[str, Any]:
     results: dict[str, Any] = {}
     plan = [(policy, False) for policy in [*baselines, *models]] + [(model, True) for model in models if shield]
     for scenario in scenarios:
@@ -78,15 +80,16 @@ def run(models: list[str], scenarios: list[str], runs: int, mpc_runs: int, out: 
             label = label_of(policy, shielded)
             path = out / scenario / f"{label}.jsonl"
             if policy == "mpc" and reuse_mpc is not None:
-                copied = reuse_mpc_runs(study, n, reuse_mpc, path)
+                copied = reuse_mpc_runs(study, n, reuse_mpc, path, first_seed)
                 if copied:
                     print(f"{scenario}: {copied} MPC runs copied from {reuse_mpc}", file=sys.stderr)
             print(f"{scenario}: {label} x {n}", file=sys.stderr)
-            summary = evaluate(study, n, out=path, resume=path.exists(), workers=workers, progress=progress)
+            summary = evaluate(study, n, first_seed=first_seed, out=path, resume=path.exists(), workers=workers,
+                               progress=progress)
             header = study.header()
             # What the cards and tables say about the runs: their settings and seeds.
             summary["study"] = {"wind_sigma_mps": header["wind_sigma_mps"], "max_time_s": header["max_time_s"],
-                                "build": header["build"], "seeds": [0, n - 1]}
+                                "build": header["build"], "seeds": [first_seed, first_seed + n - 1]}
             if shielded and summary.get("shield"):
                 summary["shield"].update(breaches_after_unresolved(path))
             results[scenario][label] = summary
@@ -174,7 +177,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--models", default="", help="comma-separated model .zip files")
     parser.add_argument("--scenarios", default=SCENARIOS, help="comma-separated scenarios")
-    parser.add_argument("--runs", type=int, default=200, help="runs per study (seeds 0..RUNS-1)")
+    parser.add_argument("--runs", type=int, default=200, help="runs per study (seeds FIRST_SEED..FIRST_SEED+RUNS-1)")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="the first seed of every study (e.g. a split of atc_nf_env.benchmark)")
     parser.add_argument("--mpc-runs", type=int, help="runs of the MPC's studies (default --runs)")
     parser.add_argument("--out", type=Path, default=Path("out/agents"), help="folder of the studies' runs")
     parser.add_argument("--reuse-mpc", type=Path, help="folder of earlier MPC studies to copy runs from")
@@ -202,7 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"--models: {model} does not exist")
     results = run(models, [s for s in args.scenarios.split(",") if s], args.runs, args.mpc_runs or args.runs,
                   args.out, args.reuse_mpc, args.workers, not args.no_progress,
-                  [b for b in args.baselines.split(",") if b], args.shield)
+                  [b for b in args.baselines.split(",") if b], args.shield, args.first_seed)
     args.summary.parent.mkdir(parents=True, exist_ok=True)
     args.summary.write_text(json.dumps(results, indent=2) + "\n")
     text = table(results)

@@ -290,6 +290,17 @@ def test_benchmark_table_and_mpc_reuse(tmp_path: Path) -> None:
     assert benchmark.reuse_mpc_runs(Study(policy="mpc", scenario="converging-4"), 1, source, tmp_path / "c.jsonl") == 0
 
 
+def test_benchmark_starts_at_the_first_seed_it_is_given(tmp_path: Path) -> None:
+    from agents import benchmark
+    from atc_nf_env.evaluate import read_results
+
+    results = benchmark.run([], ["converging-3"], runs=2, mpc_runs=2, out=tmp_path, reuse_mpc=None, workers=1,
+                            progress=False, baselines=("nf",), first_seed=1_000_000_000)
+    assert results["converging-3"]["nf"]["study"]["seeds"] == [1_000_000_000, 1_000_000_001]
+    _, records = read_results(tmp_path / "converging-3" / "nf.jsonl")
+    assert sorted(r["seed"] for r in records) == [1_000_000_000, 1_000_000_001]
+
+
 def test_train_progress_bar_ends_at_what_really_runs(capsys) -> None:
     from stable_baselines3 import PPO
 
