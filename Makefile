@@ -52,7 +52,8 @@ docs: $(BIN)/atc-nf
 # The MARL libraries (integration_tests/, examples/train_*.py) in venvs of their own:
 # RLlib pins an older gymnasium than the default venv, BenchMARL an older torchrl than
 # TorchRL's example uses, AgileRL a pettingzoo of its own. Each example trains a few
-# iterations; each venv's tests are bounded by INTEGRATIONS_TIMEOUT_S seconds.
+# iterations; each venv's tests are bounded by INTEGRATIONS_TIMEOUT_S seconds. The docs'
+# code blocks that need RLlib, TorchRL or BenchMARL run in that library's venv.
 RLLIB_VENV ?= .venv-rllib
 TORCH_VENV ?= .venv-torch
 BENCHMARL_VENV ?= .venv-benchmarl
@@ -78,8 +79,14 @@ $(AGILERL_VENV)/.installed: pyproject.toml examples/requirements-agilerl.txt
 
 test-integrations: $(RLLIB_VENV)/.installed $(TORCH_VENV)/.installed $(BENCHMARL_VENV)/.installed $(AGILERL_VENV)/.installed
 	timeout $(INTEGRATIONS_TIMEOUT_S) $(TORCH_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_torch_libraries.py
+	ATC_NF_SNIPPETS_OF=torchrl timeout $(INTEGRATIONS_TIMEOUT_S) $(TORCH_VENV)/bin/python -m pytest -q -p no:cacheprovider \
+		tests/test_docs_snippets.py -k 'python_block_runs or library_venv'
 	timeout $(INTEGRATIONS_TIMEOUT_S) $(BENCHMARL_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_benchmarl.py
+	ATC_NF_SNIPPETS_OF=benchmarl timeout $(INTEGRATIONS_TIMEOUT_S) $(BENCHMARL_VENV)/bin/python -m pytest -q -p no:cacheprovider \
+		tests/test_docs_snippets.py -k 'python_block_runs or library_venv'
 	timeout $(INTEGRATIONS_TIMEOUT_S) $(RLLIB_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_rllib.py
+	ATC_NF_SNIPPETS_OF=ray.rllib timeout $(INTEGRATIONS_TIMEOUT_S) $(RLLIB_VENV)/bin/python -m pytest -q -p no:cacheprovider \
+		tests/test_docs_snippets.py -k 'python_block_runs or library_venv'
 	timeout $(INTEGRATIONS_TIMEOUT_S) $(AGILERL_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_agilerl.py
 
 bench: $(BIN)/atc-nf

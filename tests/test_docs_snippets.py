@@ -3,7 +3,9 @@
 - ``python`` blocks run as scripts (``__main__``) in an empty folder, so a snippet that
   works only from the repository's root (a relative path) fails here. A block that
   imports a library the test venv lacks (RLlib, TorchRL, BenchMARL: each lives in a venv
-  of its own, see ``make test-integrations``) is skipped, saying which.
+  of its own) is skipped, saying which; ``make test-integrations`` runs those blocks in
+  their library's venv, with ``ATC_NF_SNIPPETS_OF`` naming the library (then only the
+  blocks that name it run, and the test fails if there are none).
 - ``bash`` blocks: each command runs in an empty folder in which ``agents/`` is the
   repository's (the shipped models' relative paths are how users run them from a
   clone). ``atc-nf`` and ``python`` commands run as written, except the ones in SCALED
@@ -83,6 +85,12 @@ SKIPPED_PREFIXES: dict[str, str] = {
 }
 #: Libraries a python block may need that the test venv does not have.
 OPTIONAL_LIBRARIES = ("ray.rllib", "torchrl", "benchmarl")
+#: In a library's own venv (``make test-integrations``): run only the blocks naming it.
+SNIPPETS_OF = os.environ.get("ATC_NF_SNIPPETS_OF")
+
+
+def _names(code: str, module: str) -> bool:
+    return re.search(rf"\b{re.escape(module)}\b", code) is not None
 
 
 def code_blocks() -> list[tuple[str, str, str]]:
@@ -129,10 +137,19 @@ def test_every_block_has_a_language_this_test_runs() -> None:
     assert not unknown, f"blocks this test cannot run (give python, bash or toml): {unknown}"
 
 
+def test_a_library_venv_has_blocks_of_its_library() -> None:
+    if SNIPPETS_OF is None:
+        pytest.skip("ATC_NF_SNIPPETS_OF is set by make test-integrations only")
+    assert SNIPPETS_OF in OPTIONAL_LIBRARIES
+    assert any(_names(code, SNIPPETS_OF) for _, lang, code in BLOCKS if lang == "python")
+
+
 @pytest.mark.parametrize("code", _blocks("python"))
 def test_python_block_runs(code: str, tmp_path: Path) -> None:
+    if SNIPPETS_OF is not None and not _names(code, SNIPPETS_OF):
+        pytest.skip(f"not a block of {SNIPPETS_OF} (ATC_NF_SNIPPETS_OF)")
     # A name anywhere counts: atc_nf_env.integrations.torchrl needs torchrl too.
-    missing = [m for m in OPTIONAL_LIBRARIES if re.search(rf"\b{re.escape(m)}\b", code) and not _importable(m)]
+    missing = [m for m in OPTIONAL_LIBRARIES if _names(code, m) and not _importable(m)]
     if missing:
         pytest.skip(f"needs {', '.join(missing)}, not in this venv (make test-integrations builds its venv)")
     script = tmp_path / "snippet.py"
