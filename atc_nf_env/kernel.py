@@ -914,7 +914,7 @@ def _advance_world(
     return math.sqrt(min_sep2), step, violated
 
 
-# Not inlined: an inlined body would take its caller's flags, and ``_advance_checked``
+# Not inlined: an inlined body would take its caller's flags, and ``_advance_checked_one``
 # compiles without fast-math; a world must fly the same code alone and in a batch. Without
 # reference counts: the threads of ``_advance_batch`` count on the same arrays' counters.
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
@@ -1450,7 +1450,7 @@ def _advance_lanes(
             steps_done, violated, record, record_every, lanes[c], temp[c], world[c],
         )
 
-# Outcomes of ``_advance_checked``.
+# Outcomes of the ``_advance_checked_*`` entries.
 _DONE = 0
 _BAD_INPUT = 1  # a NaN or inf in an input, or a parameter out of range: nothing was flown
 _NON_FINITE_RESULT = 2  # the integration produced a NaN or inf
@@ -1465,8 +1465,97 @@ def _all_finite(values: np.ndarray) -> bool:
     return True
 
 
+# The three paths have an entry each, chosen in Python by the batch's size (``_entry_for``):
+# numba compiles a function with every function it calls, so one entry reaching all three
+# paths compiled all of them on any first call, and a one-world flight (an environment, a
+# single simulation) paid for the parallel batch paths too.
 @njit(cache=True, error_model="numpy")
-def _advance_checked(
+def _inputs_valid(params: np.ndarray, state: np.ndarray, waypoints: np.ndarray, wind: np.ndarray) -> bool:
+    """Every input value finite, and the parameters that are divided by > 0."""
+    if not (_all_finite(params) and _all_finite(state) and _all_finite(waypoints) and _all_finite(wind)):
+        return False
+    for index in _POSITIVE_INDEX:
+        if not params[index] > 0.0:
+            return False
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _advance_checked_one(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind: np.ndarray,
+    n_steps: int,
+    params: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    aircraft_lanes: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    min_separation: np.ndarray,
+    steps_done: np.ndarray,
+    violated: np.ndarray,
+    record: np.ndarray,
+    record_every: int,
+) -> int:
+    """``advance``'s compiled part for one world: the checks of the values (all finite, the
+    parameters that are divided by > 0) before anything moves, the flight, and the check
+    that the state came out finite; one call from Python instead of a dozen numpy
+    reductions. No thread pool: waking it costs more than one world's work, and far more
+    when other processes hold the cores."""
+    if not _inputs_valid(params, state, waypoints, wind):
+        return _BAD_INPUT
+    _advance_one(
+        0, state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
+        violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
+        violated, record, record_every,
+    )
+    if not _all_finite(state):
+        return _NON_FINITE_RESULT
+    return _DONE
+
+
+@njit(cache=True, error_model="numpy")
+def _advance_checked_batch(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind: np.ndarray,
+    n_steps: int,
+    params: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    aircraft_lanes: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    min_separation: np.ndarray,
+    steps_done: np.ndarray,
+    violated: np.ndarray,
+    record: np.ndarray,
+    record_every: int,
+) -> int:
+    """``_advance_checked_one`` for a batch flown by the scalar path, the worlds in parallel."""
+    if not _inputs_valid(params, state, waypoints, wind):
+        return _BAD_INPUT
+    _advance_batch(
+        state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
+        violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record,
+        record_every,
+    )
+    if not _all_finite(state):
+        return _NON_FINITE_RESULT
+    return _DONE
+
+
+@njit(cache=True, error_model="numpy")
+def _advance_checked_lanes(
     state: np.ndarray,
     waypoints: np.ndarray,
     wind: np.ndarray,
@@ -1490,50 +1579,15 @@ def _advance_checked(
     temp: np.ndarray,
     world: np.ndarray,
 ) -> int:
-    """``advance``'s compiled part: the checks of the values (all finite, the parameters
-    that are divided by > 0) before anything moves, the flight, and the check that the
-    state came out finite; one call from Python instead of a dozen numpy reductions."""
-    if not (_all_finite(params) and _all_finite(state) and _all_finite(waypoints) and _all_finite(wind)):
+    """``_advance_checked_one`` for a batch flown by the lane path (k = 2 only), the chunks
+    of worlds in parallel."""
+    if not _inputs_valid(params, state, waypoints, wind):
         return _BAD_INPUT
-    for index in _POSITIVE_INDEX:
-        if not params[index] > 0.0:
-            return _BAD_INPUT
-    if state.shape[0] == 1:
-        # One world needs no thread pool: waking it costs more than the work itself, and
-        # far more when other processes hold the cores.
-        _advance_one(
-            0, state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
-            violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
-            violated, record, record_every,
-        )
-    elif state.shape[0] >= LANE_MIN_WORLDS and params[nf.P_K] == 2.0:
-        _advance_lanes(
-            state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
-            violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record,
-            record_every, lanes, temp, world,
-        )
-    else:
-        _advance_batch(
-            state,
-            waypoints,
-            wind,
-            n_steps,
-            params,
-            grad,
-            command,
-            aircraft_lanes,
-            min_airspeed,
-            max_airspeed,
-            violation_steps,
-            worst_excursion,
-            steps_flown,
-            los_pairs,
-            min_separation,
-            steps_done,
-            violated,
-            record,
-            record_every,
-        )
+    _advance_lanes(
+        state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
+        violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record,
+        record_every, lanes, temp, world,
+    )
     if not _all_finite(state):
         return _NON_FINITE_RESULT
     return _DONE
@@ -1858,30 +1912,17 @@ def advance(
     scratch = scratch or _DEFAULT_SCRATCH
     grad, command, aircraft_lanes = scratch.get(n_worlds, n_aircraft)
     trace = scratch.trace(n_worlds, n_aircraft, n_steps // record_every + 1 if record_every > 0 else 0)
-    outcome = _advance_checked(
-        state,
-        waypoints,
-        wind_kt,
-        n_steps,
-        params,
-        grad,
-        command,
-        aircraft_lanes,
-        trace.min_airspeed_kt,
-        trace.max_airspeed_kt,
-        trace.violation_steps,
-        trace.worst_excursion_kt,
-        trace.steps_flown,
-        trace.los_pairs,
-        trace.min_separation_nm,
-        trace.steps_done,
-        trace.violated,
-        trace.record,
-        max(record_every, 1),
-        scratch.lanes,
-        scratch.lane_temp,
-        scratch.lane_world,
+    arguments = (
+        state, waypoints, wind_kt, n_steps, params, grad, command, aircraft_lanes, trace.min_airspeed_kt,
+        trace.max_airspeed_kt, trace.violation_steps, trace.worst_excursion_kt, trace.steps_flown, trace.los_pairs,
+        trace.min_separation_nm, trace.steps_done, trace.violated, trace.record, max(record_every, 1),
     )
+    if n_worlds == 1:
+        outcome = _advance_checked_one(*arguments)
+    elif n_worlds >= LANE_MIN_WORLDS and params[nf.P_K] == 2.0:
+        outcome = _advance_checked_lanes(*arguments, scratch.lanes, scratch.lane_temp, scratch.lane_world)
+    else:
+        outcome = _advance_checked_batch(*arguments)
     if outcome == _BAD_INPUT:
         _check_inputs(state, waypoints, wind_kt, seconds, params, record_every)  # raises, naming the input
         raise AssertionError("the compiled and the Python checks of advance's inputs disagree")
