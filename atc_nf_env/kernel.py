@@ -237,7 +237,7 @@ _HALF_PI = 0.5 * math.pi
 _TWO_PI = 2.0 * math.pi
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _wrap(angle: float) -> float:
     """Angle wrapped to [−π, π)."""
     # Differences of wrapped angles lie within ±2π: one conditional shift is enough
@@ -269,7 +269,7 @@ def _assign_waypoints(state: np.ndarray, waypoints: np.ndarray) -> None:
         state[i, S_FRESH] = 1.0
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py: float) -> float:
     """Distance from point p to the segment from (x0, y0) to (x1, y1)."""
     sx = x1 - x0
@@ -287,7 +287,7 @@ def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py:
     return math.sqrt(ex * ex + ey * ey)
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _right_turn_weight(dphi_dt: float, p_floored: float, params: np.ndarray) -> float:
     """Weight in [0, 1] of the right-hand rule (guard 9): 0 while the 1/P_i term of (5a),
     (∂Φ_i/∂t)⁺ / |P_i| in kt, is below ``right_turn_from_kt``, 1 from ``right_turn_full_kt``
@@ -303,7 +303,7 @@ def _right_turn_weight(dphi_dt: float, p_floored: float, params: np.ndarray) -> 
     return x * x * (3.0 - 2.0 * x)
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _commands(
     state: np.ndarray,
     pos: np.ndarray,
@@ -441,7 +441,7 @@ def _commands(
     return any_flying, refine, outside
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _begin_world(
     state: np.ndarray,
     waypoints: np.ndarray,
@@ -475,7 +475,7 @@ def _begin_world(
             record[0, i, R_AIRSPEED_MAX] = state[i, S_AIRSPEED]
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _record_step(state: np.ndarray, command: np.ndarray, record: np.ndarray, step: int, record_every: int) -> None:
     """The world's state after integration step ``step`` into its record, every
     ``record_every`` steps."""
@@ -492,7 +492,7 @@ def _record_step(state: np.ndarray, command: np.ndarray, record: np.ndarray, ste
             record[r, i, R_AIRSPEED_MAX] = command[i, C_STEP_MAX] if flew_step else state[i, S_AIRSPEED]
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _flown_airspeed(
     u: float, first_flown: bool, lowest: float, highest: float, worst: float, u_min: float, u_max: float
 ) -> tuple[float, float, float, float]:
@@ -546,9 +546,9 @@ def _ordinary_run(
     without the neighbour loops, the second pass and the guards' branches: the same bits
     (``tests/test_kernel_ordinary_step.py``). Kept in lanes between steps, the aircraft's
     loops have no dependence from one aircraft to the next, and the state's rows are read
-    and written once per run instead of once per step: 1.25-1.38x as fast as the one-step
+    and written once per run instead of once per step: 1.29-1.40x as fast as the one-step
     form it replaced on the safety filter's checks
-    (``bench/experiments/one_world_persistent_lanes.py``). Compiled on its own, not inlined
+    (``bench/experiments/ordinary_run_ab.py``). Compiled on its own, not inlined
     into ``_advance_world``: inlined, the one-step form lengthened the kernel's first
     compilation more (in one run, by 24 s against 16 s, on 73 s)."""
     n = state.shape[0]
@@ -690,7 +690,7 @@ def _ordinary_run(
     return flown, violated, min_sep2, abandoned
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _commit_aircraft_lanes(state: np.ndarray, command: np.ndarray, lanes: np.ndarray, count: int, n: int,
                            every_field: bool) -> None:
     """The last step committed in ``_ordinary_run``'s lanes into the state (every field of
@@ -725,7 +725,10 @@ def _commit_aircraft_lanes(state: np.ndarray, command: np.ndarray, lanes: np.nda
 
 
 # Without reference counts (``nf.NO_REFERENCE_COUNTS``): it allocates nothing, and the counts
-# of the arrays its inlined helpers pass took about a quarter of a one-world flight.
+# of the arrays it passes to its helpers took about a quarter of a one-world flight (the
+# helpers that take arrays are compiled without them too). The helpers are compiled on
+# their own and left to LLVM to inline: numba-level inlining copies each callee's IR into
+# every call site and lengthened the first compilation by about a third, at the same speed.
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _advance_world(
     state: np.ndarray,
