@@ -1474,12 +1474,22 @@ def _all_finite(values: np.ndarray) -> bool:
 # single simulation) paid for the parallel batch paths too.
 @njit(cache=True, error_model="numpy")
 def _inputs_valid(params: np.ndarray, state: np.ndarray, waypoints: np.ndarray, wind: np.ndarray) -> bool:
-    """Every input value finite, and the parameters that are divided by > 0."""
+    """Every input value finite, the parameters that are divided by > 0, the step lengths
+    within ``_check_step_lengths``' bounds and every status a defined code
+    (``_check_inputs`` names what is wrong)."""
     if not (_all_finite(params) and _all_finite(state) and _all_finite(waypoints) and _all_finite(wind)):
         return False
     for index in _POSITIVE_INDEX:
         if not params[index] > 0.0:
             return False
+    if not (params[P_DT] >= MIN_STEP_S and params[P_SUBSTEP] >= MIN_STEP_S
+            and params[P_DT] <= MAX_SUBSTEPS * params[P_SUBSTEP]):
+        return False
+    for b in range(state.shape[0]):
+        for i in range(state.shape[1]):
+            status = state[b, i, S_STATUS]
+            if not (status == FLYING or status == ARRIVED or status == LEFT or status == ABSENT):
+                return False
     return True
 
 
@@ -1720,8 +1730,21 @@ _DROPPED_COUNTS = _counts_when_dropped()
 _DEFAULT_SCRATCH = KernelScratch()
 
 
+#: Shortest integration step and sub-step (``dt_s``, ``substep_s``) ``advance`` accepts, s:
+#: a finer one makes a flight take absurd numbers of steps (a 3-h flight at 1 ms is already
+#: 10.8 million per aircraft; SimConfig's default is 5 s, its sub-steps 0.1 s).
+MIN_STEP_S = 1e-3
+#: Most sub-steps of one refined integration step, ceil(dt_s / substep_s) (50 by default).
+MAX_SUBSTEPS = 10_000
+#: Most integration steps of one ``advance`` call (a longer flight is several calls).
+MAX_STEPS_PER_CALL = 10_000_000
+
+
 def steps_for(seconds: float, dt_s: float) -> int:
-    """Number of integration steps in ``seconds``; it must be a whole number of steps."""
+    """Number of integration steps of ``dt_s`` (s, at least ``MIN_STEP_S``) in ``seconds``;
+    it must be a whole number of steps, and at most ``MAX_STEPS_PER_CALL``."""
+    if not (math.isfinite(dt_s) and dt_s >= MIN_STEP_S):
+        raise ValueError(f"dt_s = {dt_s!r}: the integration step must be a finite number >= {MIN_STEP_S} s")
     if not math.isfinite(seconds) or seconds < 0:
         raise ValueError(f"seconds = {seconds!r}: must be a finite number >= 0")
     n_steps = round(seconds / dt_s)
@@ -1729,6 +1752,11 @@ def steps_for(seconds: float, dt_s: float) -> int:
         raise ValueError(
             f"seconds = {seconds!r} is not a whole number of integration steps of {dt_s} s; "
             f"use a multiple of {dt_s}"
+        )
+    if n_steps > MAX_STEPS_PER_CALL:
+        raise ValueError(
+            f"seconds = {seconds!r} is {n_steps} integration steps of {dt_s} s; at most {MAX_STEPS_PER_CALL} "
+            "are flown in one call: advance a longer flight in several calls"
         )
     return n_steps
 
@@ -1746,6 +1774,7 @@ _POSITIVE_PARAMS = {
     nf.P_U_CAP: "airspeed_cap_kt",
     nf.P_P_FLOOR: "p_floor",
     nf.P_GRAD_FLOOR: "grad_floor",
+    nf.P_SUBSTEP: "substep_s",
 }
 
 _POSITIVE_INDEX = np.array(sorted(_POSITIVE_PARAMS))
@@ -1764,9 +1793,46 @@ def _check_params(params: np.ndarray) -> None:
     if not (np.isfinite(params).all() and (params[_POSITIVE_INDEX] > 0).all()):  # fast path: every call
         if not np.isfinite(params).all():
             raise ValueError(f"params contains NaN or inf at index {np.flatnonzero(~np.isfinite(params)).tolist()}")
+        _check_step_lengths(params)  # the steps first: their message gives their whole range
         for index, name in _POSITIVE_PARAMS.items():
             if not params[index] > 0:
-                raise ValueError(f"params[{index}] ({name}) = {params[index]!r}: must be > 0")
+                raise ValueError(f"params[{index}] ({name}) = {float(params[index])!r}: must be > 0")
+    _check_step_lengths(params)
+
+
+def _check_step_lengths(params: np.ndarray) -> None:
+    """The integration step and the sub-step (finite, > 0 already): at least ``MIN_STEP_S``,
+    and at most ``MAX_SUBSTEPS`` sub-steps to a refined step."""
+    for index, name in ((nf.P_DT, "dt_s"), (nf.P_SUBSTEP, "substep_s")):
+        if not params[index] >= MIN_STEP_S:
+            raise ValueError(
+                f"params[{index}] ({name}) = {float(params[index])!r}: must be at least {MIN_STEP_S} s "
+                "(a finer step would take absurd numbers of steps)"
+            )
+    if not params[nf.P_DT] <= MAX_SUBSTEPS * params[nf.P_SUBSTEP]:
+        raise ValueError(
+            f"params[{nf.P_DT}] (dt_s) = {float(params[nf.P_DT])!r} and params[{nf.P_SUBSTEP}] (substep_s) = "
+            f"{float(params[nf.P_SUBSTEP])!r}: a refined step would take more than {MAX_SUBSTEPS} sub-steps; "
+            f"substep_s must be at least dt_s / {MAX_SUBSTEPS}"
+        )
+
+
+#: The status codes of an aircraft (``S_STATUS``) and their names.
+STATUS_NAMES = {FLYING: "FLYING", ARRIVED: "ARRIVED", LEFT: "LEFT", ABSENT: "ABSENT"}
+_STATUS_CODES = np.array(sorted(STATUS_NAMES))
+
+
+def _check_statuses(state: np.ndarray) -> None:
+    """Every aircraft's ``S_STATUS`` one of the codes of ``STATUS_NAMES``."""
+    status = state[:, :, S_STATUS]
+    unknown = ~np.isin(status, _STATUS_CODES)
+    if unknown.any():
+        world, aircraft = np.argwhere(unknown)[0].tolist()
+        allowed = ", ".join(f"{code!r} ({name})" for code, name in STATUS_NAMES.items())
+        raise ValueError(
+            f"state[{world}, {aircraft}, S_STATUS] = {float(status[world, aircraft])!r} is not an aircraft status; "
+            f"allowed: {allowed}"
+        )
 
 
 def _check_finite_result(state: np.ndarray) -> None:
@@ -1814,6 +1880,7 @@ def _check_inputs(
     for name, array in (("state", state), ("waypoints", waypoints), ("wind_kt", wind_kt)):
         if not np.isfinite(array).all():
             raise ValueError(f"{name} contains NaN or inf; all values must be finite")
+    _check_statuses(state)
     if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 0:
         raise ValueError(f"record_every = {record_every!r}: must be an integer >= 0")
     return waypoints, wind_kt, steps_for(seconds, float(params[nf.P_DT]))
@@ -1872,6 +1939,45 @@ def _quick_steps(
 _STEPS_SEEN: dict[tuple[float, float], int] = {}
 
 
+#: About how long each entry's first compilation takes on one idle core of a laptop-class
+#: CPU, s (``bench/bench_compile.py`` measures them): the notice's estimate.
+_FIRST_COMPILE_S = {"_advance_checked_one": 20, "_advance_checked_batch": 15, "_advance_checked_lanes": 25}
+#: The entries ``advance`` has called in this process (their notice is given or not needed).
+_ENTRIES_CALLED: set = set()
+#: Whether this process printed the compile notice.
+_NOTICE_GIVEN = False
+
+
+def will_compile(dispatcher, arguments: tuple) -> bool:
+    """Whether calling the numba ``dispatcher`` on ``arguments`` compiles it: no overload for
+    their types in this process, nor in numba's on-disk cache. False where numba's cache
+    cannot be inspected (its private interface moved: ``tests/test_kernel_compile.py``
+    pins it), so that a warm start never prints a false notice."""
+    try:
+        types = tuple(dispatcher.typeof_pyval(argument) for argument in arguments)
+        if types in dispatcher.overloads:
+            return False
+        cache = dispatcher._cache
+        if not hasattr(cache, "_cache_file"):
+            return True  # a function compiled without cache=True
+        key = cache._index_key(types, dispatcher.targetctx.codegen())
+        return key not in cache._cache_file._load_index()
+    except Exception:  # noqa: BLE001 - any failure of numba's private interface
+        return False
+
+
+def compile_notice(dispatcher, arguments: tuple, estimate_s: float) -> None:
+    """One line on stderr before the first call of ``dispatcher`` on ``arguments`` that
+    compiles it (``will_compile``), at most once per process: the first run sits through
+    numba's compilation of the simulator (``estimate_s``, s, on an idle core), later runs
+    load it from numba's cache."""
+    global _NOTICE_GIVEN
+    if _NOTICE_GIVEN or not will_compile(dispatcher, arguments):
+        return
+    _NOTICE_GIVEN = True
+    print(f"compiling the simulator (first run only, about {estimate_s:.0f} s)…", file=sys.stderr, flush=True)
+
+
 def advance(
     state: np.ndarray,
     waypoints: np.ndarray,
@@ -1904,8 +2010,11 @@ def advance(
     Raises:
         TypeError: if ``state`` is not a numpy array.
         ValueError: on a wrong shape, dtype or layout, a params vector of the wrong
-            length or with a non-positive step or scale, a duration that is not a whole
-            number of steps, or a NaN/inf in any input.
+            length or with a non-positive scale, an integration step or sub-step shorter
+            than ``MIN_STEP_S`` (or more than ``MAX_SUBSTEPS`` sub-steps to a step), a
+            duration that is not a whole number of steps or longer than
+            ``MAX_STEPS_PER_CALL`` of them, an aircraft status that is not one of
+            ``STATUS_NAMES``, or a NaN/inf in any input.
         FloatingPointError: if the integration produced a non-finite state.
     """
     n_steps = _quick_steps(state, waypoints, wind_kt, seconds, params, record_every)
@@ -1921,11 +2030,16 @@ def advance(
         trace.min_separation_nm, trace.steps_done, trace.violated, trace.record, max(record_every, 1),
     )
     if n_worlds == 1:
-        outcome = _advance_checked_one(*arguments)
+        entry = _advance_checked_one
     elif n_worlds >= LANE_MIN_WORLDS and params[nf.P_K] == 2.0:
-        outcome = _advance_checked_lanes(*arguments, scratch.lanes, scratch.lane_temp, scratch.lane_world)
+        entry = _advance_checked_lanes
+        arguments += (scratch.lanes, scratch.lane_temp, scratch.lane_world)
     else:
-        outcome = _advance_checked_batch(*arguments)
+        entry = _advance_checked_batch
+    if entry not in _ENTRIES_CALLED:
+        compile_notice(entry, arguments, _FIRST_COMPILE_S[entry.__name__])
+        _ENTRIES_CALLED.add(entry)
+    outcome = entry(*arguments)
     if outcome == _BAD_INPUT:
         _check_inputs(state, waypoints, wind_kt, seconds, params, record_every)  # raises, naming the input
         raise AssertionError("the compiled and the Python checks of advance's inputs disagree")
@@ -1950,6 +2064,12 @@ __all__ = [
     "Trace",
     "KernelScratch",
     "advance",
+    "compile_notice",
+    "will_compile",
+    "MIN_STEP_S",
+    "MAX_SUBSTEPS",
+    "MAX_STEPS_PER_CALL",
+    "STATUS_NAMES",
     "new_state",
     "steps_for",
 ]
