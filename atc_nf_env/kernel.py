@@ -564,7 +564,7 @@ def _ordinary_run(
     u_min = params[P_U_MIN]
     u_max = params[P_U_MAX]
     lanes = aircraft_lanes
-    count = 0
+    count = np.int64(0)  # not a literal 0: see ``step`` in ``_advance_world``
     for i in range(n):
         if state[i, S_STATUS] == FLYING:
             lanes[A_INDEX, count] = i
@@ -778,7 +778,9 @@ def _advance_world(
 
     # The ordinary steps by ``_ordinary_run`` (its arithmetic is for k = 2 only).
     ordinary_law = ordinary_steps and params[nf.P_K] == 2.0
-    step = 0
+    # Typed int64 from the start (not the literal 0): numba compiles a callee once per
+    # argument type, and ``_ordinary_run`` took a second compilation for a literal 0.
+    step = np.int64(0)
     while step < n_steps:
         if ordinary_law:
             flew, step_violation, min_sep2, abandoned = _ordinary_run(
@@ -945,6 +947,8 @@ def _advance_one(
 ) -> None:
     """World b of the batch: ``_advance_world`` on its slices, its outcome into the
     per-world result arrays."""
+    # ``record_every`` as an int64 whatever the caller passed (a literal 1 is a type of its
+    # own, and would compile ``_advance_world`` once more).
     sep, done, bad = _advance_world(
         state[b],
         waypoints[b],
@@ -962,7 +966,7 @@ def _advance_one(
         steps_flown[b],
         los_pairs[b],
         record[b],
-        record_every,
+        np.int64(record_every),
         True,
     )
     min_separation[b] = sep
