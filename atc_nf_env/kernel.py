@@ -6,7 +6,9 @@ Every part of the project that moves aircraft calls this: the environments (B = 
 the number of vector envs), the MPC (B = K candidates, one decision at once) and the
 Monte Carlo evaluator. It is compiled with numba, parallel over worlds, and allocates
 nothing inside its integration loop (its scratch comes from the caller). The checks of
-its inputs' values and of its result run in the same compiled call as the flight.
+its inputs' values and of its result run in the same compiled call as the flight. Its three
+paths (one world, a small batch, the lane path below) are compiled entries of their own,
+each compiled when a call first needs it.
 A batch of ``LANE_MIN_WORLDS`` worlds or more takes the lane path (see the section of that
 name below): a world's ordinary steps, with no neighbour in range and no guard acting, are
 flown for chunks of worlds at once in SIMD lanes, its other steps by the scalar path, in the
@@ -1943,9 +1945,10 @@ def _quick_steps(
 _STEPS_SEEN: dict[tuple[float, float], int] = {}
 
 
-#: About how long each entry's first compilation takes on one idle core of a laptop-class
-#: CPU, s (``bench/bench_compile.py`` measures them): the notice's estimate.
-_FIRST_COMPILE_S = {"_advance_checked_one": 20, "_advance_checked_batch": 15, "_advance_checked_lanes": 25}
+#: About how long each entry's first compilation takes on one core, s: the notice's
+#: estimate (``bench/bench_compile.py`` measures them: 13, 7 and 15 s of CPU on the machine
+#: of the project's figures).
+_FIRST_COMPILE_S = {"_advance_checked_one": 15, "_advance_checked_batch": 10, "_advance_checked_lanes": 20}
 #: The entries ``advance`` has called in this process (their notice is given or not needed).
 _ENTRIES_CALLED: set = set()
 #: Whether this process printed the compile notice.
@@ -2005,6 +2008,10 @@ def advance(
         record_every: record the state every this many steps (0: no recording).
         scratch: reusable buffers (a module-level one by default; pass your own when
             calling from several threads).
+
+    The first call of each path in a process (one world, a batch below ``LANE_MIN_WORLDS``
+    worlds, a larger one) compiles it, or loads it from numba's on-disk cache; a compilation
+    that will happen is announced by one line on stderr, once per process (``compile_notice``).
 
     Returns:
         The ``Trace`` of the call: new arrays, or those of an earlier trace of the same
