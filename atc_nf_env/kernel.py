@@ -1050,14 +1050,14 @@ W_MIN_SEP_SCALAR = 9  # smallest separation over the steps flown by the scalar p
 N_LANE_WORLD = 10
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _select(condition: bool, if_true: float, if_false: float) -> float:
     """``if_true if condition else if_false`` of two values already loaded (a function
     argument is evaluated before the call: no load under a condition, no branch)."""
     return if_true if condition else if_false
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _lane_wrap(angle: float) -> float:
     """``_wrap`` for |angle| < 3π as a select (its third case, a floor, for larger angles,
     sends the step to the scalar path)."""
@@ -1066,7 +1066,7 @@ def _lane_wrap(angle: float) -> float:
     return angle if (angle >= -math.pi) & (angle < math.pi) else near
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _lane_feedback(gx: float, gy: float, cos_h: float, sin_h: float, dx: float, dy: float, atan2_nh: float,
                    theta_d: float, params: np.ndarray) -> tuple[float, float]:
     """``_commands``' pass 1 after the NF, without neighbours: (−sgn(P_i) F_i kt, θ_nh rad),
@@ -1080,7 +1080,7 @@ def _lane_feedback(gx: float, gy: float, cos_h: float, sin_h: float, dx: float, 
     return -sgn_p * f_speed, theta_nh
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _lane_move(u: float, cos_h: float, sin_h: float, wind_x: float, wind_y: float, x0: float, y0: float,
                heading: float, theta_nh: float, theta_nh_before: float, fresh: float, last_sub: float,
                vx_prev: float, vy_prev: float, omega_prev: float, dt: float, inv_dt: float,
