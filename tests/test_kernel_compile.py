@@ -63,11 +63,18 @@ def test_advance_gives_the_notice_on_an_empty_cache_only(tmp_path: Path) -> None
         from atc_nf_env.simulation import initial_state
         scenario = converging(4)
         params = SimConfig().to_params(scenario.workspace_radius_nm)
+        batch = (kernel._advance_checked_batch, kernel._advance_batch, kernel._advance_checked_lanes,
+                 kernel._advance_lanes, kernel._fly_lanes, kernel._lane_step)
         for n_worlds in (1, 1, 2):
             state = initial_state(scenario, n_worlds)
             kernel.advance(state, np.repeat(scenario.dest_xy[None], n_worlds, axis=0), np.zeros((n_worlds, 2)), 300.0,
                            params)
+            # Functions compiled (or loaded) in this process: a one-world flight needs neither batch path.
+            print(len(kernel._advance_checked_one.signatures), sum(len(f.signatures) for f in batch))
     """
     cold = _run(code, tmp_path / "cache")
     assert cold.stderr.count(NOTICE) == 1  # the one-world path; the batch path's compilation follows silently
+    assert cold.stdout.split()[:4] == ["1", "0", "1", "0"]  # compiled, not loaded: callees count too
+    assert cold.stdout.split()[5] != "0"
     assert NOTICE not in _run(code, tmp_path / "cache").stderr
+
