@@ -999,8 +999,10 @@ def _advance_batch(
     record_every: int,
 ) -> None:
     for b in prange(state.shape[0]):
+        # ``b`` as an int64, as ``_advance_checked_one`` passes it: numba compiles
+        # ``_advance_one`` once per argument type (prange's index is a uint64 once parallelized).
         _advance_one(
-            b, state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
+            np.int64(b), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
             violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
             violated, record, record_every,
         )
@@ -1529,7 +1531,7 @@ def _advance_checked_one(
     if not _inputs_valid(params, state, waypoints, wind):
         return _BAD_INPUT
     _advance_one(
-        0, state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
+        np.int64(0), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
         violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
         violated, record, record_every,
     )
