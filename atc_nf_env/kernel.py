@@ -730,7 +730,8 @@ def _commit_aircraft_lanes(state: np.ndarray, command: np.ndarray, lanes: np.nda
 # of the arrays it passes to its helpers took about a quarter of a one-world flight (the
 # helpers that take arrays are compiled without them too). The helpers are compiled on
 # their own and left to LLVM to inline: numba-level inlining copies each callee's IR into
-# every call site and lengthened the first compilation by about a third, at the same speed.
+# every call site, and nearly doubled the one-world path's first compilation (41 s of CPU
+# against 22 s, in one run on a loaded machine) for no speed.
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _advance_world(
     state: np.ndarray,
@@ -1476,7 +1477,7 @@ def _all_finite(values: np.ndarray) -> bool:
     return True
 
 
-# The three paths have an entry each, chosen in Python by the batch's size (``_entry_for``):
+# The three paths have an entry each, chosen in Python by the batch's size (``advance``):
 # numba compiles a function with every function it calls, so one entry reaching all three
 # paths compiled all of them on any first call, and a one-world flight (an environment, a
 # single simulation) paid for the parallel batch paths too.
@@ -1523,10 +1524,9 @@ def _advance_checked_one(
     record: np.ndarray,
     record_every: int,
 ) -> int:
-    """``advance``'s compiled part for one world: the checks of the values (all finite, the
-    parameters that are divided by > 0) before anything moves, the flight, and the check
-    that the state came out finite; one call from Python instead of a dozen numpy
-    reductions. No thread pool: waking it costs more than one world's work, and far more
+    """``advance``'s compiled part for one world: the checks of the values
+    (``_inputs_valid``) before anything moves, the flight, and the check that the state
+    came out finite; one call from Python instead of a dozen numpy reductions. No thread pool: waking it costs more than one world's work, and far more
     when other processes hold the cores."""
     if not _inputs_valid(params, state, waypoints, wind):
         return _BAD_INPUT
