@@ -1947,10 +1947,10 @@ def _quick_steps(
 _STEPS_SEEN: dict[tuple[float, float], int] = {}
 
 
-#: About how long each entry's first compilation takes on one core, s: the notice's
-#: estimate (``bench/bench_compile.py`` measures them: 13, 7 and 15 s of CPU on the machine
-#: of the project's figures).
-_FIRST_COMPILE_S = {"_advance_checked_one": 15, "_advance_checked_batch": 10, "_advance_checked_lanes": 20}
+#: About how long each entry's first compilation takes on one core when it is the first in
+#: the process, s: the notice's estimate (``bench/bench_compile.py`` measured 12, 16 and 31 s
+#: of CPU; a path compiled after another reuses the scalar path's functions).
+_FIRST_COMPILE_S = {"_advance_checked_one": 12, "_advance_checked_batch": 15, "_advance_checked_lanes": 30}
 #: The entries ``advance`` has called in this process (their notice is given or not needed).
 _ENTRIES_CALLED: set = set()
 #: Whether this process printed the compile notice.
