@@ -6,7 +6,9 @@ Every part of the project that moves aircraft calls this: the environments (B = 
 the number of vector envs), the MPC (B = K candidates, one decision at once) and the
 Monte Carlo evaluator. It is compiled with numba, parallel over worlds, and allocates
 nothing inside its integration loop (its scratch comes from the caller). The checks of
-its inputs' values and of its result run in the same compiled call as the flight.
+its inputs' values and of its result run in the same compiled call as the flight. Its three
+paths (one world, a small batch, the lane path below) are compiled entries of their own,
+each compiled when a call first needs it.
 A batch of ``LANE_MIN_WORLDS`` worlds or more takes the lane path (see the section of that
 name below): a world's ordinary steps, with no neighbour in range and no guard acting, are
 flown for chunks of worlds at once in SIMD lanes, its other steps by the scalar path, in the
@@ -237,7 +239,7 @@ _HALF_PI = 0.5 * math.pi
 _TWO_PI = 2.0 * math.pi
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _wrap(angle: float) -> float:
     """Angle wrapped to [−π, π)."""
     # Differences of wrapped angles lie within ±2π: one conditional shift is enough
@@ -269,7 +271,7 @@ def _assign_waypoints(state: np.ndarray, waypoints: np.ndarray) -> None:
         state[i, S_FRESH] = 1.0
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py: float) -> float:
     """Distance from point p to the segment from (x0, y0) to (x1, y1)."""
     sx = x1 - x0
@@ -287,7 +289,7 @@ def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py:
     return math.sqrt(ex * ex + ey * ey)
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _right_turn_weight(dphi_dt: float, p_floored: float, params: np.ndarray) -> float:
     """Weight in [0, 1] of the right-hand rule (guard 9): 0 while the 1/P_i term of (5a),
     (∂Φ_i/∂t)⁺ / |P_i| in kt, is below ``right_turn_from_kt``, 1 from ``right_turn_full_kt``
@@ -303,7 +305,7 @@ def _right_turn_weight(dphi_dt: float, p_floored: float, params: np.ndarray) -> 
     return x * x * (3.0 - 2.0 * x)
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _commands(
     state: np.ndarray,
     pos: np.ndarray,
@@ -441,7 +443,7 @@ def _commands(
     return any_flying, refine, outside
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _begin_world(
     state: np.ndarray,
     waypoints: np.ndarray,
@@ -475,7 +477,7 @@ def _begin_world(
             record[0, i, R_AIRSPEED_MAX] = state[i, S_AIRSPEED]
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _record_step(state: np.ndarray, command: np.ndarray, record: np.ndarray, step: int, record_every: int) -> None:
     """The world's state after integration step ``step`` into its record, every
     ``record_every`` steps."""
@@ -492,7 +494,7 @@ def _record_step(state: np.ndarray, command: np.ndarray, record: np.ndarray, ste
             record[r, i, R_AIRSPEED_MAX] = command[i, C_STEP_MAX] if flew_step else state[i, S_AIRSPEED]
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _flown_airspeed(
     u: float, first_flown: bool, lowest: float, highest: float, worst: float, u_min: float, u_max: float
 ) -> tuple[float, float, float, float]:
@@ -546,9 +548,9 @@ def _ordinary_run(
     without the neighbour loops, the second pass and the guards' branches: the same bits
     (``tests/test_kernel_ordinary_step.py``). Kept in lanes between steps, the aircraft's
     loops have no dependence from one aircraft to the next, and the state's rows are read
-    and written once per run instead of once per step: 1.25-1.38x as fast as the one-step
+    and written once per run instead of once per step: 1.29-1.40x as fast as the one-step
     form it replaced on the safety filter's checks
-    (``bench/experiments/one_world_persistent_lanes.py``). Compiled on its own, not inlined
+    (``bench/experiments/ordinary_run_ab.py``). Compiled on its own, not inlined
     into ``_advance_world``: inlined, the one-step form lengthened the kernel's first
     compilation more (in one run, by 24 s against 16 s, on 73 s)."""
     n = state.shape[0]
@@ -564,7 +566,7 @@ def _ordinary_run(
     u_min = params[P_U_MIN]
     u_max = params[P_U_MAX]
     lanes = aircraft_lanes
-    count = 0
+    count = np.int64(0)  # not a literal 0: see ``step`` in ``_advance_world``
     for i in range(n):
         if state[i, S_STATUS] == FLYING:
             lanes[A_INDEX, count] = i
@@ -690,7 +692,7 @@ def _ordinary_run(
     return flown, violated, min_sep2, abandoned
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _commit_aircraft_lanes(state: np.ndarray, command: np.ndarray, lanes: np.ndarray, count: int, n: int,
                            every_field: bool) -> None:
     """The last step committed in ``_ordinary_run``'s lanes into the state (every field of
@@ -725,7 +727,11 @@ def _commit_aircraft_lanes(state: np.ndarray, command: np.ndarray, lanes: np.nda
 
 
 # Without reference counts (``nf.NO_REFERENCE_COUNTS``): it allocates nothing, and the counts
-# of the arrays its inlined helpers pass took about a quarter of a one-world flight.
+# of the arrays it passes to its helpers took about a quarter of a one-world flight (the
+# helpers that take arrays are compiled without them too). The helpers are compiled on
+# their own and left to LLVM to inline: numba-level inlining copies each callee's IR into
+# every call site, and nearly doubled the one-world path's first compilation (41 s of CPU
+# against 22 s, in one run on a loaded machine) for no speed.
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _advance_world(
     state: np.ndarray,
@@ -775,7 +781,9 @@ def _advance_world(
 
     # The ordinary steps by ``_ordinary_run`` (its arithmetic is for k = 2 only).
     ordinary_law = ordinary_steps and params[nf.P_K] == 2.0
-    step = 0
+    # Typed int64 from the start (not the literal 0): numba compiles a callee once per
+    # argument type, and ``_ordinary_run`` took a second compilation for a literal 0.
+    step = np.int64(0)
     while step < n_steps:
         if ordinary_law:
             flew, step_violation, min_sep2, abandoned = _ordinary_run(
@@ -914,7 +922,7 @@ def _advance_world(
     return math.sqrt(min_sep2), step, violated
 
 
-# Not inlined: an inlined body would take its caller's flags, and ``_advance_checked``
+# Not inlined: an inlined body would take its caller's flags, and ``_advance_checked_one``
 # compiles without fast-math; a world must fly the same code alone and in a batch. Without
 # reference counts: the threads of ``_advance_batch`` count on the same arrays' counters.
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
@@ -942,6 +950,8 @@ def _advance_one(
 ) -> None:
     """World b of the batch: ``_advance_world`` on its slices, its outcome into the
     per-world result arrays."""
+    # ``record_every`` as an int64 whatever the caller passed (a literal 1 is a type of its
+    # own, and would compile ``_advance_world`` once more).
     sep, done, bad = _advance_world(
         state[b],
         waypoints[b],
@@ -959,7 +969,7 @@ def _advance_one(
         steps_flown[b],
         los_pairs[b],
         record[b],
-        record_every,
+        np.int64(record_every),
         True,
     )
     min_separation[b] = sep
@@ -990,8 +1000,10 @@ def _advance_batch(
     record_every: int,
 ) -> None:
     for b in prange(state.shape[0]):
+        # ``b`` as an int64, as ``_advance_checked_one`` passes it: numba compiles
+        # ``_advance_one`` once per argument type (prange's index is a uint64 once parallelized).
         _advance_one(
-            b, state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
+            np.int64(b), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
             violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
             violated, record, record_every,
         )
@@ -1041,14 +1053,14 @@ W_MIN_SEP_SCALAR = 9  # smallest separation over the steps flown by the scalar p
 N_LANE_WORLD = 10
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _select(condition: bool, if_true: float, if_false: float) -> float:
     """``if_true if condition else if_false`` of two values already loaded (a function
     argument is evaluated before the call: no load under a condition, no branch)."""
     return if_true if condition else if_false
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _lane_wrap(angle: float) -> float:
     """``_wrap`` for |angle| < 3π as a select (its third case, a floor, for larger angles,
     sends the step to the scalar path)."""
@@ -1057,7 +1069,7 @@ def _lane_wrap(angle: float) -> float:
     return angle if (angle >= -math.pi) & (angle < math.pi) else near
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _lane_feedback(gx: float, gy: float, cos_h: float, sin_h: float, dx: float, dy: float, atan2_nh: float,
                    theta_d: float, params: np.ndarray) -> tuple[float, float]:
     """``_commands``' pass 1 after the NF, without neighbours: (−sgn(P_i) F_i kt, θ_nh rad),
@@ -1071,7 +1083,7 @@ def _lane_feedback(gx: float, gy: float, cos_h: float, sin_h: float, dx: float, 
     return -sgn_p * f_speed, theta_nh
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _lane_move(u: float, cos_h: float, sin_h: float, wind_x: float, wind_y: float, x0: float, y0: float,
                heading: float, theta_nh: float, theta_nh_before: float, fresh: float, last_sub: float,
                vx_prev: float, vy_prev: float, omega_prev: float, dt: float, inv_dt: float,
@@ -1450,7 +1462,7 @@ def _advance_lanes(
             steps_done, violated, record, record_every, lanes[c], temp[c], world[c],
         )
 
-# Outcomes of ``_advance_checked``.
+# Outcomes of the ``_advance_checked_*`` entries.
 _DONE = 0
 _BAD_INPUT = 1  # a NaN or inf in an input, or a parameter out of range: nothing was flown
 _NON_FINITE_RESULT = 2  # the integration produced a NaN or inf
@@ -1465,8 +1477,106 @@ def _all_finite(values: np.ndarray) -> bool:
     return True
 
 
+# The three paths have an entry each, chosen in Python by the batch's size (``advance``):
+# numba compiles a function with every function it calls, so one entry reaching all three
+# paths compiled all of them on any first call, and a one-world flight (an environment, a
+# single simulation) paid for the parallel batch paths too.
 @njit(cache=True, error_model="numpy")
-def _advance_checked(
+def _inputs_valid(params: np.ndarray, state: np.ndarray, waypoints: np.ndarray, wind: np.ndarray) -> bool:
+    """Every input value finite, the parameters that are divided by > 0, the step lengths
+    within ``_check_step_lengths``' bounds and every status a defined code
+    (``_check_inputs`` names what is wrong)."""
+    if not (_all_finite(params) and _all_finite(state) and _all_finite(waypoints) and _all_finite(wind)):
+        return False
+    for index in _POSITIVE_INDEX:
+        if not params[index] > 0.0:
+            return False
+    if not (params[P_DT] >= MIN_STEP_S and params[P_SUBSTEP] >= MIN_STEP_S
+            and params[P_DT] <= MAX_SUBSTEPS * params[P_SUBSTEP]):
+        return False
+    for b in range(state.shape[0]):
+        for i in range(state.shape[1]):
+            status = state[b, i, S_STATUS]
+            if not (status == FLYING or status == ARRIVED or status == LEFT or status == ABSENT):
+                return False
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _advance_checked_one(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind: np.ndarray,
+    n_steps: int,
+    params: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    aircraft_lanes: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    min_separation: np.ndarray,
+    steps_done: np.ndarray,
+    violated: np.ndarray,
+    record: np.ndarray,
+    record_every: int,
+) -> int:
+    """``advance``'s compiled part for one world: the checks of the values
+    (``_inputs_valid``) before anything moves, the flight, and the check that the state
+    came out finite; one call from Python instead of a dozen numpy reductions. No thread pool: waking it costs more than one world's work, and far more
+    when other processes hold the cores."""
+    if not _inputs_valid(params, state, waypoints, wind):
+        return _BAD_INPUT
+    _advance_one(
+        np.int64(0), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
+        violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
+        violated, record, record_every,
+    )
+    if not _all_finite(state):
+        return _NON_FINITE_RESULT
+    return _DONE
+
+
+@njit(cache=True, error_model="numpy")
+def _advance_checked_batch(
+    state: np.ndarray,
+    waypoints: np.ndarray,
+    wind: np.ndarray,
+    n_steps: int,
+    params: np.ndarray,
+    grad: np.ndarray,
+    command: np.ndarray,
+    aircraft_lanes: np.ndarray,
+    min_airspeed: np.ndarray,
+    max_airspeed: np.ndarray,
+    violation_steps: np.ndarray,
+    worst_excursion: np.ndarray,
+    steps_flown: np.ndarray,
+    los_pairs: np.ndarray,
+    min_separation: np.ndarray,
+    steps_done: np.ndarray,
+    violated: np.ndarray,
+    record: np.ndarray,
+    record_every: int,
+) -> int:
+    """``_advance_checked_one`` for a batch flown by the scalar path, the worlds in parallel."""
+    if not _inputs_valid(params, state, waypoints, wind):
+        return _BAD_INPUT
+    _advance_batch(
+        state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
+        violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record,
+        record_every,
+    )
+    if not _all_finite(state):
+        return _NON_FINITE_RESULT
+    return _DONE
+
+
+@njit(cache=True, error_model="numpy")
+def _advance_checked_lanes(
     state: np.ndarray,
     waypoints: np.ndarray,
     wind: np.ndarray,
@@ -1490,50 +1600,15 @@ def _advance_checked(
     temp: np.ndarray,
     world: np.ndarray,
 ) -> int:
-    """``advance``'s compiled part: the checks of the values (all finite, the parameters
-    that are divided by > 0) before anything moves, the flight, and the check that the
-    state came out finite; one call from Python instead of a dozen numpy reductions."""
-    if not (_all_finite(params) and _all_finite(state) and _all_finite(waypoints) and _all_finite(wind)):
+    """``_advance_checked_one`` for a batch flown by the lane path (k = 2 only), the chunks
+    of worlds in parallel."""
+    if not _inputs_valid(params, state, waypoints, wind):
         return _BAD_INPUT
-    for index in _POSITIVE_INDEX:
-        if not params[index] > 0.0:
-            return _BAD_INPUT
-    if state.shape[0] == 1:
-        # One world needs no thread pool: waking it costs more than the work itself, and
-        # far more when other processes hold the cores.
-        _advance_one(
-            0, state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
-            violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
-            violated, record, record_every,
-        )
-    elif state.shape[0] >= LANE_MIN_WORLDS and params[nf.P_K] == 2.0:
-        _advance_lanes(
-            state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
-            violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record,
-            record_every, lanes, temp, world,
-        )
-    else:
-        _advance_batch(
-            state,
-            waypoints,
-            wind,
-            n_steps,
-            params,
-            grad,
-            command,
-            aircraft_lanes,
-            min_airspeed,
-            max_airspeed,
-            violation_steps,
-            worst_excursion,
-            steps_flown,
-            los_pairs,
-            min_separation,
-            steps_done,
-            violated,
-            record,
-            record_every,
-        )
+    _advance_lanes(
+        state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
+        violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record,
+        record_every, lanes, temp, world,
+    )
     if not _all_finite(state):
         return _NON_FINITE_RESULT
     return _DONE
@@ -1663,8 +1738,21 @@ _DROPPED_COUNTS = _counts_when_dropped()
 _DEFAULT_SCRATCH = KernelScratch()
 
 
+#: Shortest integration step and sub-step (``dt_s``, ``substep_s``) ``advance`` accepts, s:
+#: a finer one makes a flight take absurd numbers of steps (a 3-h flight at 1 ms is already
+#: 10.8 million per aircraft; SimConfig's default is 5 s, its sub-steps 0.1 s).
+MIN_STEP_S = 1e-3
+#: Most sub-steps of one refined integration step, ceil(dt_s / substep_s) (50 by default).
+MAX_SUBSTEPS = 10_000
+#: Most integration steps of one ``advance`` call (a longer flight is several calls).
+MAX_STEPS_PER_CALL = 10_000_000
+
+
 def steps_for(seconds: float, dt_s: float) -> int:
-    """Number of integration steps in ``seconds``; it must be a whole number of steps."""
+    """Number of integration steps of ``dt_s`` (s, at least ``MIN_STEP_S``) in ``seconds``;
+    it must be a whole number of steps, and at most ``MAX_STEPS_PER_CALL``."""
+    if not (math.isfinite(dt_s) and dt_s >= MIN_STEP_S):
+        raise ValueError(f"dt_s = {dt_s!r}: the integration step must be a finite number >= {MIN_STEP_S} s")
     if not math.isfinite(seconds) or seconds < 0:
         raise ValueError(f"seconds = {seconds!r}: must be a finite number >= 0")
     n_steps = round(seconds / dt_s)
@@ -1672,6 +1760,11 @@ def steps_for(seconds: float, dt_s: float) -> int:
         raise ValueError(
             f"seconds = {seconds!r} is not a whole number of integration steps of {dt_s} s; "
             f"use a multiple of {dt_s}"
+        )
+    if n_steps > MAX_STEPS_PER_CALL:
+        raise ValueError(
+            f"seconds = {seconds!r} is {n_steps} integration steps of {dt_s} s; at most {MAX_STEPS_PER_CALL} "
+            "are flown in one call: advance a longer flight in several calls"
         )
     return n_steps
 
@@ -1689,6 +1782,7 @@ _POSITIVE_PARAMS = {
     nf.P_U_CAP: "airspeed_cap_kt",
     nf.P_P_FLOOR: "p_floor",
     nf.P_GRAD_FLOOR: "grad_floor",
+    nf.P_SUBSTEP: "substep_s",
 }
 
 _POSITIVE_INDEX = np.array(sorted(_POSITIVE_PARAMS))
@@ -1707,9 +1801,46 @@ def _check_params(params: np.ndarray) -> None:
     if not (np.isfinite(params).all() and (params[_POSITIVE_INDEX] > 0).all()):  # fast path: every call
         if not np.isfinite(params).all():
             raise ValueError(f"params contains NaN or inf at index {np.flatnonzero(~np.isfinite(params)).tolist()}")
+        _check_step_lengths(params)  # the steps first: their message gives their whole range
         for index, name in _POSITIVE_PARAMS.items():
             if not params[index] > 0:
-                raise ValueError(f"params[{index}] ({name}) = {params[index]!r}: must be > 0")
+                raise ValueError(f"params[{index}] ({name}) = {float(params[index])!r}: must be > 0")
+    _check_step_lengths(params)
+
+
+def _check_step_lengths(params: np.ndarray) -> None:
+    """The integration step and the sub-step (finite, > 0 already): at least ``MIN_STEP_S``,
+    and at most ``MAX_SUBSTEPS`` sub-steps to a refined step."""
+    for index, name in ((nf.P_DT, "dt_s"), (nf.P_SUBSTEP, "substep_s")):
+        if not params[index] >= MIN_STEP_S:
+            raise ValueError(
+                f"params[{index}] ({name}) = {float(params[index])!r}: must be at least {MIN_STEP_S} s "
+                "(a finer step would take absurd numbers of steps)"
+            )
+    if not params[nf.P_DT] <= MAX_SUBSTEPS * params[nf.P_SUBSTEP]:
+        raise ValueError(
+            f"params[{nf.P_DT}] (dt_s) = {float(params[nf.P_DT])!r} and params[{nf.P_SUBSTEP}] (substep_s) = "
+            f"{float(params[nf.P_SUBSTEP])!r}: a refined step would take more than {MAX_SUBSTEPS} sub-steps; "
+            f"substep_s must be at least dt_s / {MAX_SUBSTEPS}"
+        )
+
+
+#: The status codes of an aircraft (``S_STATUS``) and their names.
+STATUS_NAMES = {FLYING: "FLYING", ARRIVED: "ARRIVED", LEFT: "LEFT", ABSENT: "ABSENT"}
+_STATUS_CODES = np.array(sorted(STATUS_NAMES))
+
+
+def _check_statuses(state: np.ndarray) -> None:
+    """Every aircraft's ``S_STATUS`` one of the codes of ``STATUS_NAMES``."""
+    status = state[:, :, S_STATUS]
+    unknown = ~np.isin(status, _STATUS_CODES)
+    if unknown.any():
+        world, aircraft = np.argwhere(unknown)[0].tolist()
+        allowed = ", ".join(f"{code!r} ({name})" for code, name in STATUS_NAMES.items())
+        raise ValueError(
+            f"state[{world}, {aircraft}, S_STATUS] = {float(status[world, aircraft])!r} is not an aircraft status; "
+            f"allowed: {allowed}"
+        )
 
 
 def _check_finite_result(state: np.ndarray) -> None:
@@ -1757,6 +1888,7 @@ def _check_inputs(
     for name, array in (("state", state), ("waypoints", waypoints), ("wind_kt", wind_kt)):
         if not np.isfinite(array).all():
             raise ValueError(f"{name} contains NaN or inf; all values must be finite")
+    _check_statuses(state)
     if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 0:
         raise ValueError(f"record_every = {record_every!r}: must be an integer >= 0")
     return waypoints, wind_kt, steps_for(seconds, float(params[nf.P_DT]))
@@ -1815,6 +1947,46 @@ def _quick_steps(
 _STEPS_SEEN: dict[tuple[float, float], int] = {}
 
 
+#: About how long each entry's first compilation takes on one core when it is the first in
+#: the process, s: the notice's estimate (``bench/bench_compile.py`` measured 12, 16 and 31 s
+#: of CPU; a path compiled after another reuses the scalar path's functions).
+_FIRST_COMPILE_S = {"_advance_checked_one": 12, "_advance_checked_batch": 15, "_advance_checked_lanes": 30}
+#: The entries ``advance`` has called in this process (their notice is given or not needed).
+_ENTRIES_CALLED: set = set()
+#: Whether this process printed the compile notice.
+_NOTICE_GIVEN = False
+
+
+def will_compile(dispatcher, arguments: tuple) -> bool:
+    """Whether calling the numba ``dispatcher`` on ``arguments`` compiles it: no overload for
+    their types in this process, nor in numba's on-disk cache. False where numba's cache
+    cannot be inspected (its private interface moved: ``tests/test_kernel_compile.py``
+    pins it), so that a warm start never prints a false notice."""
+    try:
+        types = tuple(dispatcher.typeof_pyval(argument) for argument in arguments)
+        if types in dispatcher.overloads:
+            return False
+        cache = dispatcher._cache
+        if not hasattr(cache, "_cache_file"):
+            return True  # a function compiled without cache=True
+        key = cache._index_key(types, dispatcher.targetctx.codegen())
+        return key not in cache._cache_file._load_index()
+    except Exception:  # noqa: BLE001 - any failure of numba's private interface
+        return False
+
+
+def compile_notice(dispatcher, arguments: tuple, estimate_s: float) -> None:
+    """One line on stderr before the first call of ``dispatcher`` on ``arguments`` that
+    compiles it (``will_compile``), at most once per process: the first run sits through
+    numba's compilation of the simulator (``estimate_s``, s, on an idle core), later runs
+    load it from numba's cache."""
+    global _NOTICE_GIVEN
+    if _NOTICE_GIVEN or not will_compile(dispatcher, arguments):
+        return
+    _NOTICE_GIVEN = True
+    print(f"compiling the simulator (first run only, about {estimate_s:.0f} s)…", file=sys.stderr, flush=True)
+
+
 def advance(
     state: np.ndarray,
     waypoints: np.ndarray,
@@ -1839,6 +2011,10 @@ def advance(
         scratch: reusable buffers (a module-level one by default; pass your own when
             calling from several threads).
 
+    The first call of each path in a process (one world, a batch below ``LANE_MIN_WORLDS``
+    worlds, a larger one) compiles it, or loads it from numba's on-disk cache; a compilation
+    that will happen is announced by one line on stderr, once per process (``compile_notice``).
+
     Returns:
         The ``Trace`` of the call: new arrays, or those of an earlier trace of the same
         scratch and shapes that nothing refers to any more (``KernelScratch.trace``), which
@@ -1847,8 +2023,11 @@ def advance(
     Raises:
         TypeError: if ``state`` is not a numpy array.
         ValueError: on a wrong shape, dtype or layout, a params vector of the wrong
-            length or with a non-positive step or scale, a duration that is not a whole
-            number of steps, or a NaN/inf in any input.
+            length or with a non-positive scale, an integration step or sub-step shorter
+            than ``MIN_STEP_S`` (or more than ``MAX_SUBSTEPS`` sub-steps to a step), a
+            duration that is not a whole number of steps or longer than
+            ``MAX_STEPS_PER_CALL`` of them, an aircraft status that is not one of
+            ``STATUS_NAMES``, or a NaN/inf in any input.
         FloatingPointError: if the integration produced a non-finite state.
     """
     n_steps = _quick_steps(state, waypoints, wind_kt, seconds, params, record_every)
@@ -1858,30 +2037,22 @@ def advance(
     scratch = scratch or _DEFAULT_SCRATCH
     grad, command, aircraft_lanes = scratch.get(n_worlds, n_aircraft)
     trace = scratch.trace(n_worlds, n_aircraft, n_steps // record_every + 1 if record_every > 0 else 0)
-    outcome = _advance_checked(
-        state,
-        waypoints,
-        wind_kt,
-        n_steps,
-        params,
-        grad,
-        command,
-        aircraft_lanes,
-        trace.min_airspeed_kt,
-        trace.max_airspeed_kt,
-        trace.violation_steps,
-        trace.worst_excursion_kt,
-        trace.steps_flown,
-        trace.los_pairs,
-        trace.min_separation_nm,
-        trace.steps_done,
-        trace.violated,
-        trace.record,
-        max(record_every, 1),
-        scratch.lanes,
-        scratch.lane_temp,
-        scratch.lane_world,
+    arguments = (
+        state, waypoints, wind_kt, n_steps, params, grad, command, aircraft_lanes, trace.min_airspeed_kt,
+        trace.max_airspeed_kt, trace.violation_steps, trace.worst_excursion_kt, trace.steps_flown, trace.los_pairs,
+        trace.min_separation_nm, trace.steps_done, trace.violated, trace.record, max(record_every, 1),
     )
+    if n_worlds == 1:
+        entry = _advance_checked_one
+    elif n_worlds >= LANE_MIN_WORLDS and params[nf.P_K] == 2.0:
+        entry = _advance_checked_lanes
+        arguments += (scratch.lanes, scratch.lane_temp, scratch.lane_world)
+    else:
+        entry = _advance_checked_batch
+    if entry not in _ENTRIES_CALLED:
+        compile_notice(entry, arguments, _FIRST_COMPILE_S[entry.__name__])
+        _ENTRIES_CALLED.add(entry)
+    outcome = entry(*arguments)
     if outcome == _BAD_INPUT:
         _check_inputs(state, waypoints, wind_kt, seconds, params, record_every)  # raises, naming the input
         raise AssertionError("the compiled and the Python checks of advance's inputs disagree")
@@ -1906,6 +2077,12 @@ __all__ = [
     "Trace",
     "KernelScratch",
     "advance",
+    "compile_notice",
+    "will_compile",
+    "MIN_STEP_S",
+    "MAX_SUBSTEPS",
+    "MAX_STEPS_PER_CALL",
+    "STATUS_NAMES",
     "new_state",
     "steps_for",
 ]

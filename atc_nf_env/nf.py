@@ -51,7 +51,7 @@ def _without_reference_counts() -> dict:
 
     numba counts references to every array a compiled function passes on or slices, with
     an atomic increment and decrement per count (``NRT_incref``/``NRT_decref``), and the
-    NF's helpers, inlined into the integration loop, pass arrays at every aircraft and
+    NF's helpers, called in the integration loop, pass arrays at every aircraft and
     step: sampled with ``perf``, those atomic operations took about 28 % of a one-world
     prediction. A function that allocates nothing needs no counts, and the arithmetic is
     unchanged (bit for bit). The option is numba's own (``_nrt``, of its CPU target
@@ -104,7 +104,7 @@ LEFT = 2.0
 ABSENT = 3.0  # padding slot of a world with fewer aircraft than the batch's N
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def proximity_bump(s: float, c: float) -> tuple[float, float]:
     """h(s) and h'(s) of the decentralized proximity function.
 
@@ -179,7 +179,7 @@ def nf_constants(params: np.ndarray) -> tuple:
     )
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def nf_along_direction(
     i: int,
     pos: np.ndarray,

@@ -96,7 +96,7 @@ def poly_sincos(angle: float) -> tuple[float, float]:
 SINCOS_POLY_LIMIT = 1e6
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def sincos(angle: float) -> tuple[float, float]:
     """(sin, cos) of ``angle`` (rad): ``poly_sincos`` where |angle| <= ``SINCOS_POLY_LIMIT``,
     libm's beyond."""

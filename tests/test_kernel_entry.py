@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from atc_nf_env import kernel, nf
 from atc_nf_env.config import SimConfig
 from atc_nf_env.kernel import advance
 from atc_nf_env.scenarios import converging
@@ -67,3 +68,71 @@ def test_the_first_bad_input_is_named_whichever_path_checks_it() -> None:
         advance(_inputs()[0], waypoints, wind, 301.0, PARAMS)
     with pytest.raises(ValueError, match=r"record_every = True"):
         advance(_inputs()[0], waypoints, wind, 300.0, PARAMS, record_every=True)
+
+
+def _one_world() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    state, waypoints, wind = _inputs()
+    return state[:1].copy(), waypoints[:1].copy(), wind[:1].copy()
+
+
+@pytest.mark.parametrize("inputs", [_inputs, _one_world], ids=["batch", "one world"])
+@pytest.mark.parametrize("as_lists", [False, True], ids=["compiled check", "Python check"])
+@pytest.mark.parametrize(
+    "index, value, message",
+    [
+        (nf.P_SUBSTEP, 0.0, r"params\[22\] \(substep_s\) = 0\.0: must be at least 0\.001 s"),
+        (nf.P_SUBSTEP, -1.0, r"params\[22\] \(substep_s\) = -1\.0: must be at least 0\.001 s"),
+        (nf.P_SUBSTEP, 1e-7, r"params\[22\] \(substep_s\) = 1e-07: must be at least 0\.001 s"),
+        (nf.P_SUBSTEP, np.inf, r"params contains NaN or inf at index \[22\]"),
+        (nf.P_DT, 1e-7, r"params\[12\] \(dt_s\) = 1e-07: must be at least 0\.001 s"),
+        (nf.P_DT, -1.0, r"params\[12\] \(dt_s\) = -1\.0: must be at least 0\.001 s"),
+    ],
+)
+def test_a_step_or_sub_step_too_short_is_refused(inputs, as_lists, index, value, message) -> None:
+    state, waypoints, wind = inputs()
+    params = PARAMS.copy()
+    params[index] = value
+    before = state.copy()
+    if as_lists:
+        waypoints = waypoints.tolist()
+    with pytest.raises(ValueError, match=message):
+        advance(state, waypoints, wind, 0.0 if index == nf.P_DT else 300.0, params)
+    assert np.array_equal(state, before)
+
+
+def test_a_step_with_too_many_sub_steps_is_refused() -> None:
+    state, waypoints, wind = _one_world()
+    params = PARAMS.copy()
+    params[nf.P_DT] = 60.0
+    params[nf.P_SUBSTEP] = 60.0 / (kernel.MAX_SUBSTEPS + 1)
+    with pytest.raises(ValueError, match=r"more than 10000 sub-steps; substep_s must be at least dt_s / 10000"):
+        advance(state, waypoints, wind, 300.0, params)
+    params[nf.P_SUBSTEP] = 60.0 / kernel.MAX_SUBSTEPS  # the bound itself is accepted
+    assert advance(state, waypoints, wind, 300.0, params).steps_done.tolist() == [5]
+
+
+def test_an_advance_of_too_many_steps_is_refused() -> None:
+    state, waypoints, wind = _one_world()
+    before = state.copy()
+    seconds = (kernel.MAX_STEPS_PER_CALL + 1) * PARAMS[nf.P_DT]
+    with pytest.raises(ValueError, match=r"is 10000001 integration steps of 5\.0 s; at most 10000000"):
+        advance(state, waypoints, wind, seconds, PARAMS, record_every=1)
+    assert np.array_equal(state, before)
+    with pytest.raises(ValueError, match=r"dt_s = 0\.0: the integration step must be a finite number >= 0\.001 s"):
+        kernel.steps_for(300.0, 0.0)
+
+
+@pytest.mark.parametrize("inputs", [_inputs, _one_world], ids=["batch", "one world"])
+@pytest.mark.parametrize("as_lists", [False, True], ids=["compiled check", "Python check"])
+@pytest.mark.parametrize("status", [42.0, -1.0, 0.5, 4.0])
+def test_an_unknown_aircraft_status_is_refused(inputs, as_lists, status) -> None:
+    state, waypoints, wind = inputs()
+    state[-1, 1, kernel.S_STATUS] = status
+    before = state.copy()
+    if as_lists:
+        waypoints = waypoints.tolist()
+    allowed = r"allowed: 0\.0 \(FLYING\), 1\.0 \(ARRIVED\), 2\.0 \(LEFT\), 3\.0 \(ABSENT\)"
+    with pytest.raises(ValueError, match=rf"state\[{len(state) - 1}, 1, S_STATUS\] = {status!r} is not an aircraft "
+                                         rf"status; {allowed}"):
+        advance(state, waypoints, wind, 300.0, PARAMS)
+    assert np.array_equal(state, before)
