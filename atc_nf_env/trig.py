@@ -15,7 +15,7 @@ computes the same bits (``tests/test_kernel_lanes.py``,
 kernel's trajectories independent of the host's libm, whose results differ between
 builds and CPUs (glibc picks an FMA variant where the CPU has one).
 
-Accuracy, against libm (``bench/experiments/trig_probe.py``, tests/test_trig.py): within
+Accuracy, against libm (tests/test_trig.py): within
 2 ulps where the result exceeds 1e-8 in size, absolute error at most 4.4e-16. Signed
 zeros are not told apart (the kernel's fast-math flags ignore them).
 
@@ -106,11 +106,11 @@ def sincos(angle: float) -> tuple[float, float]:
 
 
 # The same two functions inlined at numba's level into their callers: the lane step's two
-# loops over worlds, which LLVM then vectorizes (B = 1000 flew 1.29-1.30x as fast, at the
-# same first compilation: ``bench/experiments/kernel_variant_ab.py --variant lane-trig-call``
-# times the kernel that calls them), and the one-world runs of ordinary steps
-# (``kernel._ordinary_run``, compiled on its own). Not the general scalar path: inlined everywhere they lengthened the
-# kernel's first compilation by about a third for no gain at B = 1 (``--variant trig-inline``).
+# loops over worlds, which LLVM then vectorizes (B = 1000 flew 1.29-1.30x as fast as with
+# the functions called, at the same first compilation), and the one-world runs of ordinary
+# steps (``kernel._ordinary_run``, compiled on its own). Not the general scalar path:
+# inlined everywhere they lengthened the kernel's first compilation by about a third for no
+# gain at B = 1.
 # The same Python under the same flags: the same bits.
 poly_atan2_inlined = njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", inline="always")(
     poly_atan2.py_func)

@@ -78,3 +78,20 @@ def test_advance_gives_the_notice_on_an_empty_cache_only(tmp_path: Path) -> None
     assert cold.stdout.split()[5] != "0"
     assert NOTICE not in _run(code, tmp_path / "cache").stderr
 
+
+
+def test_the_first_env_step_announces_its_compilation_and_a_warm_one_does_not(tmp_path: Path) -> None:
+    """The env flies a period in one compiled call of its own (not through ``advance``):
+    its first step says so too, and only when numba's cache does not hold it."""
+    code = """
+        import gymnasium as gym
+        import atc_nf_env
+        env = gym.make("atc_nf_env/Encounter-v0", scenario="converging-3")
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+        env.step(env.action_space.sample())
+    """
+    cold = _run(code, tmp_path / "cache")
+    warm = _run(code, tmp_path / "cache")
+    assert cold.stderr.count(NOTICE) == 1
+    assert NOTICE not in warm.stderr

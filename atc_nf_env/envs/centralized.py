@@ -37,6 +37,10 @@ from atc_nf_env.scenarios import check_seed
 from atc_nf_env.simulation import Simulation
 from atc_nf_env.units import DECISION_PERIOD_S
 
+#: CPU time of the compiled period's first compilation on an idle core, s (its first step
+#: says so when numba's cache does not hold it: ``kernel.compile_notice``).
+FIRST_PERIOD_COMPILE_S = 16
+
 #: Integration steps between recorded states when rendering (trails), at dt = 5 s: 30 s.
 RENDER_RECORD_EVERY: int = 6
 
@@ -199,9 +203,8 @@ def _fly_world_period(
     more; three calls and that glue took about a fifth of a converging-4 env step."""
     _waypoints_from_state(actions.reshape((1, actions.shape[0], 2)), state, distance_nm, span_nm, angle_span_rad,
                           limit_nm, waypoints)
-    # ``kernel._advance_checked``'s checks and flight for one world. Not that function
-    # itself: it reaches the parallel batch paths, and numba's cache cannot reload a
-    # function compiled against cached parallel code (the reload crashed).
+    # ``kernel.advance``'s checks and one-world flight, inlined here: the kernel's entries
+    # are chosen in Python, and this whole period is one compiled call.
     if not (kernel._all_finite(params) and kernel._all_finite(state) and kernel._all_finite(waypoints)
             and kernel._all_finite(wind)):
         return kernel._BAD_INPUT
@@ -283,6 +286,7 @@ class EncounterWorld:
         self._expose_wind = bool(cfg.expose_wind)
         self._nearest_buffer = np.empty((1, self.n_slots))  # read by the compiled step only
         self._start: SimpleNamespace | None = None
+        self._compile_checked = False  # whether the compile notice was considered for this world
         self.flying = np.zeros(n, dtype=np.bool_)
 
     # ----------------------------------------------------------------- episode
@@ -416,7 +420,7 @@ class EncounterWorld:
         info = np.empty(n, dtype=INFO_RECORD)
         distance, self._distance_spare = self._distance_spare, self._distance
         flying, self._flying_spare = self._flying_spare, self.flying
-        outcome = _fly_world_period(
+        arguments = (
             actions, state, *self._mapping, self._wind, self._period_steps, sim.params, self._grad, self._command,
             self._aircraft_lanes,
             trace.min_airspeed_kt, trace.max_airspeed_kt, trace.violation_steps, trace.worst_excursion_kt,
@@ -425,6 +429,10 @@ class EncounterWorld:
             self._distance_spare, self._reward_weights, self._time_fraction, self._n_neighbours, self._expose_wind,
             self._scales, self._nearest_buffer, distance, flying, waypoints, obs, info, sim.time_s, self._limit_s,
         )
+        if not self._compile_checked:  # the kernel's one-world path compiled into this period's call
+            kernel.compile_notice(_fly_world_period, arguments, FIRST_PERIOD_COMPILE_S)
+            self._compile_checked = True
+        outcome = _fly_world_period(*arguments)
         if outcome != kernel._DONE:
             # Put the buffers back as they were, then raise as ``advance`` would.
             self._distance_spare, self._flying_spare = distance, flying
