@@ -1951,6 +1951,10 @@ _STEPS_SEEN: dict[tuple[float, float], int] = {}
 #: the process, s: the notice's estimate (``bench/bench_compile.py`` measured 12, 16 and 31 s
 #: of CPU; a path compiled after another reuses the scalar path's functions).
 _FIRST_COMPILE_S = {"_advance_checked_one": 12, "_advance_checked_batch": 15, "_advance_checked_lanes": 30}
+#: The same for the three paths compiled one after the other in one process (``load_paths``).
+_ALL_PATHS_COMPILE_S = 35
+#: The estimate the notice gives while ``load_paths`` compiles every path (None otherwise).
+_notice_estimate_s: float | None = None
 #: The entries ``advance`` has called in this process (their notice is given or not needed).
 _ENTRIES_CALLED: set = set()
 #: Whether this process printed the compile notice.
@@ -1985,6 +1989,25 @@ def compile_notice(dispatcher, arguments: tuple, estimate_s: float) -> None:
         return
     _NOTICE_GIVEN = True
     print(f"compiling the simulator (first run only, about {estimate_s:.0f} s)…", file=sys.stderr, flush=True)
+
+
+def load_paths(world: np.ndarray, params: np.ndarray) -> None:
+    """Compile (or load from numba's cache) every path ``advance`` can take for worlds like
+    ``world`` (N, N_STATE) flown with ``params``, by flying one integration step of 1, 2
+    and ``LANE_MIN_WORLDS`` copies of it under no wind; paths already called in this
+    process cost nothing. A policy that flies batches of any size (the MPC's candidates)
+    calls it when reset, so that no compilation falls into a timed decision."""
+    global _notice_estimate_s
+    if {_advance_checked_one, _advance_checked_batch, _advance_checked_lanes} <= _ENTRIES_CALLED:
+        return
+    dt_s = float(params[nf.P_DT])
+    _notice_estimate_s = _ALL_PATHS_COMPILE_S
+    try:
+        for n_worlds in (1, 2, LANE_MIN_WORLDS):
+            states = np.repeat(np.ascontiguousarray(world, dtype=np.float64)[None], n_worlds, axis=0)
+            advance(states, states[:, :, S_WP_X : S_WP_Y + 1].copy(), np.zeros((n_worlds, 2)), dt_s, params)
+    finally:
+        _notice_estimate_s = None
 
 
 def advance(
@@ -2050,7 +2073,7 @@ def advance(
     else:
         entry = _advance_checked_batch
     if entry not in _ENTRIES_CALLED:
-        compile_notice(entry, arguments, _FIRST_COMPILE_S[entry.__name__])
+        compile_notice(entry, arguments, _notice_estimate_s or _FIRST_COMPILE_S[entry.__name__])
         _ENTRIES_CALLED.add(entry)
     outcome = entry(*arguments)
     if outcome == _BAD_INPUT:

@@ -178,7 +178,7 @@ from atc_nf_env.kernel import (
 # re-exported here, where they were first defined.
 from atc_nf_env.proposals import homing_mixture_draws, inside_workspace
 from atc_nf_env.scenarios import Scenario
-from atc_nf_env.simulation import WorldView
+from atc_nf_env.simulation import WorldView, initial_state
 from atc_nf_env.units import AIRSPEED_NOMINAL_KT, DECISION_PERIOD_S, KT_PER_MPS, SECONDS_PER_HOUR, WIND_SIGMA_MPS
 
 WIND_MODELS = ("none", "sampled", "estimated")
@@ -463,6 +463,9 @@ class MCMCMPC:
                 (narrowed, narrowed.to_params(scenario.workspace_radius_nm, stop_on_violation=stop))
             )
         self._config, self._params = self._prediction_models[0]
+        # Every kernel path the candidates' batches can take, compiled (or loaded) now: a
+        # first compilation inside a decision would be timed as the decision.
+        kernel.load_paths(initial_state(scenario)[0], self._params)
         self._wind_estimate_given = False
         self._workspace_radius_nm = scenario.workspace_radius_nm
         self.decisions = []

@@ -95,3 +95,21 @@ def test_the_first_env_step_announces_its_compilation_and_a_warm_one_does_not(tm
     warm = _run(code, tmp_path / "cache")
     assert cold.stderr.count(NOTICE) == 1
     assert NOTICE not in warm.stderr
+
+
+def test_the_mpc_compiles_every_kernel_path_when_reset_not_inside_a_timed_decision(tmp_path: Path) -> None:
+    """The MPC flies its candidates in batches of any size: each kernel path is compiled
+    (or loaded) by its reset, so the first episode's decisions are timed warm."""
+    code = """
+        import numba
+        from atc_nf_env import kernel
+        from atc_nf_env.config import SimConfig
+        from atc_nf_env.policy import make_policy
+        from atc_nf_env.scenarios import make_scenario
+        make_policy("mpc").reset(make_scenario("converging-3"), SimConfig(), 0)
+        entries = (kernel._advance_checked_one, kernel._advance_checked_batch, kernel._advance_checked_lanes)
+        print(all(entry in kernel._ENTRIES_CALLED and entry.signatures for entry in entries))
+    """
+    done = _run(code, tmp_path / "cache")
+    assert done.stdout.split() == ["True"]
+    assert done.stderr.count(NOTICE) == 1 and "about 35 s" in done.stderr
