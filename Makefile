@@ -91,6 +91,7 @@ test-integrations: $(RLLIB_VENV)/.installed $(TORCH_VENV)/.installed $(BENCHMARL
 
 bench: $(BIN)/atc-nf
 	$(BIN)/python bench/bench_kernel.py --write
+	$(BIN)/python bench/bench_compile.py --write
 	$(BIN)/python bench/integration_step_study.py --write
 	$(BIN)/python bench/substep_watch_study.py --write
 	$(BIN)/python bench/bench_mpc.py --write

@@ -73,6 +73,7 @@ fi
 
 if [[ $WHAT == all || $WHAT == benchmarks ]]; then
     run bench-kernel "$PYTHON" bench/bench_kernel.py --write
+    run bench-compile "$PYTHON" bench/bench_compile.py --write
     run bench-envs "$PYTHON" bench/bench_envs.py --write
     run bench-mpc "$PYTHON" bench/bench_mpc.py --seeds 5 --repeats 2 --write
     run bench-shield "$PYTHON" bench/bench_shield.py --seeds 50 --scenarios converging-4,converging-6,random-4,random-6 --write
