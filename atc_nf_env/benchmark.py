@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
+from atc_nf_env.episode import MAX_EPISODE_S
 from atc_nf_env.units import AIRSPEED_MAX_KT, AIRSPEED_MIN_KT, WIND_SIGMA_MPS
 
 #: The suite's version: cards of different versions are not comparable.
@@ -52,8 +53,8 @@ class Task:
     name: str
     scenario: str
     wind_sigma_mps: float = WIND_SIGMA_MPS
-    #: The episode's time limit, s (the evaluator's default: 3 h).
-    max_time_s: float = 3 * 3600.0
+    #: The episode's time limit, s (the evaluator's default, 4 h).
+    max_time_s: float = MAX_EPISODE_S
     description: str = ""
 
 
