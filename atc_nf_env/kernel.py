@@ -10,7 +10,8 @@ its inputs' values and of its result run in the same compiled call as the flight
 paths (one world, a small batch, the lane path below) are compiled entries of their own,
 each compiled when a call first needs it.
 A batch of ``LANE_MIN_WORLDS`` worlds or more takes the lane path (see the section of that
-name below): a world's ordinary steps, with no neighbour in range and no guard acting, are
+name below), and so does every batch, one world included, in a process where a policy that
+flies batches of every size (the MPC) called ``load_paths``: a world's ordinary steps, with no neighbour in range and no guard acting, are
 flown for chunks of worlds at once in SIMD lanes, its other steps by the scalar path, in the
 same arithmetic; a world flies bit for bit the same trajectory either way. On the scalar
 path (one world, small batches, the safety filter's prediction) the same ordinary steps
@@ -141,7 +142,7 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange
 
 from atc_nf_env import nf, trig
 from atc_nf_env.nf import FAST_MATH_FLAGS, NO_REFERENCE_COUNTS
@@ -1450,14 +1451,15 @@ def _advance_lanes(
     lanes: np.ndarray,
     temp: np.ndarray,
     world: np.ndarray,
+    chunk: int,
 ) -> None:
-    """The batch in chunks of ``LANE_CHUNK`` worlds, the chunks in parallel."""
+    """The batch in chunks of ``chunk`` worlds (at most ``LANE_CHUNK``), the chunks in parallel."""
     n_worlds = state.shape[0]
-    n_chunks = (n_worlds + LANE_CHUNK - 1) // LANE_CHUNK
+    n_chunks = (n_worlds + chunk - 1) // chunk
     for c in prange(n_chunks):
-        b0 = c * LANE_CHUNK
+        b0 = c * chunk
         _fly_lanes(
-            b0, min(b0 + LANE_CHUNK, n_worlds), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes,
+            b0, min(b0 + chunk, n_worlds), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes,
             min_airspeed, max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, min_separation,
             steps_done, violated, record, record_every, lanes[c], temp[c], world[c],
         )
@@ -1599,15 +1601,16 @@ def _advance_checked_lanes(
     lanes: np.ndarray,
     temp: np.ndarray,
     world: np.ndarray,
+    chunk: int,
 ) -> int:
     """``_advance_checked_one`` for a batch flown by the lane path (k = 2 only), the chunks
-    of worlds in parallel."""
+    of ``chunk`` worlds in parallel."""
     if not _inputs_valid(params, state, waypoints, wind):
         return _BAD_INPUT
     _advance_lanes(
         state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
         violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record,
-        record_every, lanes, temp, world,
+        record_every, lanes, temp, world, chunk,
     )
     if not _all_finite(state):
         return _NON_FINITE_RESULT
@@ -1652,7 +1655,7 @@ class KernelScratch:
     (``trace``)."""
 
     def __init__(self) -> None:
-        self._shape: tuple[int, int] = (-1, -1)
+        self._shape: tuple[int, int, int] = (-1, -1, -1)
         self.grad = np.zeros((0, 0, 0, 2))
         self.command = np.zeros((0, 0, N_COMMAND))
         self.aircraft_lanes = np.zeros((0, N_AIRCRAFT_LANE, 0))
@@ -1665,17 +1668,19 @@ class KernelScratch:
         self._slots = [empty, empty]
         self._newest = 0
 
-    def get(self, n_worlds: int, n_aircraft: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The scalar path's buffers (gradients, commands, aircraft lanes) for this batch shape."""
-        if self._shape != (n_worlds, n_aircraft):
+    def get(self, n_worlds: int, n_aircraft: int, lane_chunk: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The scalar path's buffers (gradients, commands, aircraft lanes) for this batch
+        shape, and the lane path's (``lanes``, ``lane_temp``, ``lane_world``) for chunks of
+        ``lane_chunk`` worlds (none when 0)."""
+        if self._shape != (n_worlds, n_aircraft, lane_chunk):
             self.grad = np.zeros((n_worlds, n_aircraft, n_aircraft, 2))
             self.command = np.zeros((n_worlds, n_aircraft, N_COMMAND))
             self.aircraft_lanes = np.zeros((n_worlds, N_AIRCRAFT_LANE, n_aircraft))
-            chunks = -(-n_worlds // LANE_CHUNK) if n_worlds >= LANE_MIN_WORLDS else 0
+            chunks = -(-n_worlds // lane_chunk) if lane_chunk > 0 else 0
             self.lanes = np.zeros((chunks, N_STATE, n_aircraft, LANE_ROW))
             self.lane_temp = np.zeros((chunks, N_LANE_TEMP, n_aircraft, LANE_ROW))
             self.lane_world = np.zeros((chunks, N_LANE_WORLD, LANE_ROW))
-            self._shape = (n_worlds, n_aircraft)
+            self._shape = (n_worlds, n_aircraft, lane_chunk)
         return self.grad, self.command, self.aircraft_lanes
 
     def trace(self, n_worlds: int, n_aircraft: int, n_record: int) -> Trace:
@@ -1951,8 +1956,11 @@ _STEPS_SEEN: dict[tuple[float, float], int] = {}
 #: the process, s: the notice's estimate (``bench/bench_compile.py`` measured 12, 16 and 31 s
 #: of CPU; a path compiled after another reuses the scalar path's functions).
 _FIRST_COMPILE_S = {"_advance_checked_one": 12, "_advance_checked_batch": 15, "_advance_checked_lanes": 30}
-#: The same for the three paths compiled one after the other in one process (``load_paths``).
-_ALL_PATHS_COMPILE_S = 35
+#: The same for the one-world and the batch paths compiled one after the other in one process
+#: (``load_paths`` for a law whose k is not 2).
+_ALL_PATHS_COMPILE_S = 20
+#: Whether this process flies every batch size on the lane path (set by ``load_paths``).
+_lanes_for_every_size = False
 #: The estimate the notice gives while ``load_paths`` compiles every path (None otherwise).
 _notice_estimate_s: float | None = None
 #: The entries ``advance`` has called in this process (their notice is given or not needed).
@@ -1991,19 +1999,39 @@ def compile_notice(dispatcher, arguments: tuple, estimate_s: float) -> None:
     print(f"compiling the simulator (first run only, about {estimate_s:.0f} s)…", file=sys.stderr, flush=True)
 
 
+def lane_chunk(n_worlds: int) -> int:
+    """Worlds per chunk when the lane path flies ``n_worlds`` worlds: ``LANE_CHUNK``, or
+    fewer so that a batch smaller than ``LANE_CHUNK`` per thread still spreads over numba's
+    threads (a chunk is one thread's work; the chunking changes no world's bits)."""
+    return max(1, min(LANE_CHUNK, -(-n_worlds // get_num_threads())))
+
+
 def load_paths(world: np.ndarray, params: np.ndarray) -> None:
-    """Compile (or load from numba's cache) every path ``advance`` can take for worlds like
-    ``world`` (N, N_STATE) flown with ``params``, by flying one integration step of 1, 2
-    and ``LANE_MIN_WORLDS`` copies of it under no wind; paths already called in this
-    process cost nothing. A policy that flies batches of any size (the MPC's candidates)
-    calls it when reset, so that no compilation falls into a timed decision."""
-    global _notice_estimate_s
-    if {_advance_checked_one, _advance_checked_batch, _advance_checked_lanes} <= _ENTRIES_CALLED:
-        return
+    """Compile (or load from numba's cache) what ``advance`` needs for batches of any size
+    of worlds like ``world`` (N, N_STATE) flown with ``params``, by flying one integration
+    step of copies of it under no wind. A policy that flies batches of every size (the
+    MPC's candidates) calls it when reset, so that no compilation falls into a timed
+    decision.
+
+    With the law's k = 2 (the paper's), the process flies every batch size on the lane
+    path from then on, one world included: one compiled path instead of three (the first
+    run's compilation is about half), at about the same speed (``bench/bench_kernel.py``),
+    and a world flies the same bits on every path. Otherwise it compiles the one-world and
+    the batch paths. Paths already compiled in this process cost nothing."""
+    global _notice_estimate_s, _lanes_for_every_size
+    if params[nf.P_K] == 2.0:
+        _lanes_for_every_size = True
+        sizes: tuple[int, ...] = (1,)
+        if _advance_checked_lanes in _ENTRIES_CALLED:
+            return
+    else:
+        sizes = (1, 2)
+        if {_advance_checked_one, _advance_checked_batch} <= _ENTRIES_CALLED:
+            return
     dt_s = float(params[nf.P_DT])
-    _notice_estimate_s = _ALL_PATHS_COMPILE_S
+    _notice_estimate_s = _FIRST_COMPILE_S["_advance_checked_lanes"] if sizes == (1,) else _ALL_PATHS_COMPILE_S
     try:
-        for n_worlds in (1, 2, LANE_MIN_WORLDS):
+        for n_worlds in sizes:
             states = np.repeat(np.ascontiguousarray(world, dtype=np.float64)[None], n_worlds, axis=0)
             advance(states, states[:, :, S_WP_X : S_WP_Y + 1].copy(), np.zeros((n_worlds, 2)), dt_s, params)
     finally:
@@ -2035,7 +2063,7 @@ def advance(
             calling from several threads).
 
     The first call of each path in a process (one world, a batch below ``LANE_MIN_WORLDS``
-    worlds, a larger one) compiles it, or loads it from numba's on-disk cache; a compilation
+    worlds, a larger one, or after ``load_paths`` the lane path for every size) compiles it, or loads it from numba's on-disk cache; a compilation
     that will happen is announced by one line on stderr, once per process (``compile_notice``).
 
     Returns:
@@ -2058,18 +2086,20 @@ def advance(
         waypoints, wind_kt, n_steps = _check_inputs(state, waypoints, wind_kt, seconds, params, record_every)
     n_worlds, n_aircraft, _ = state.shape
     scratch = scratch or _DEFAULT_SCRATCH
-    grad, command, aircraft_lanes = scratch.get(n_worlds, n_aircraft)
+    on_lanes = params[nf.P_K] == 2.0 and (n_worlds >= LANE_MIN_WORLDS or _lanes_for_every_size)
+    chunk = lane_chunk(n_worlds) if on_lanes else 0
+    grad, command, aircraft_lanes = scratch.get(n_worlds, n_aircraft, chunk)
     trace = scratch.trace(n_worlds, n_aircraft, n_steps // record_every + 1 if record_every > 0 else 0)
     arguments = (
         state, waypoints, wind_kt, n_steps, params, grad, command, aircraft_lanes, trace.min_airspeed_kt,
         trace.max_airspeed_kt, trace.violation_steps, trace.worst_excursion_kt, trace.steps_flown, trace.los_pairs,
         trace.min_separation_nm, trace.steps_done, trace.violated, trace.record, max(record_every, 1),
     )
-    if n_worlds == 1:
-        entry = _advance_checked_one
-    elif n_worlds >= LANE_MIN_WORLDS and params[nf.P_K] == 2.0:
+    if on_lanes:
         entry = _advance_checked_lanes
-        arguments += (scratch.lanes, scratch.lane_temp, scratch.lane_world)
+        arguments += (scratch.lanes, scratch.lane_temp, scratch.lane_world, chunk)
+    elif n_worlds == 1:
+        entry = _advance_checked_one
     else:
         entry = _advance_checked_batch
     if entry not in _ENTRIES_CALLED:

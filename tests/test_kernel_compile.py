@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from atc_nf_env import kernel
+
 ROOT = Path(__file__).resolve().parents[1]
 NOTICE = "compiling the simulator (first run only"
 
@@ -97,19 +99,25 @@ def test_the_first_env_step_announces_its_compilation_and_a_warm_one_does_not(tm
     assert NOTICE not in warm.stderr
 
 
-def test_the_mpc_compiles_every_kernel_path_when_reset_not_inside_a_timed_decision(tmp_path: Path) -> None:
-    """The MPC flies its candidates in batches of any size: each kernel path is compiled
-    (or loaded) by its reset, so the first episode's decisions are timed warm."""
+def test_the_mpc_compiles_the_lane_path_when_reset_and_flies_every_batch_on_it(tmp_path: Path) -> None:
+    """The MPC flies its candidates in batches of every size: its reset compiles (or loads)
+    the lane path, so the first episode's decisions are timed warm, and from then on the
+    process flies every batch, the real world's included, on that one path: the one-world
+    and batch paths are never compiled."""
     code = """
-        import numba
         from atc_nf_env import kernel
         from atc_nf_env.config import SimConfig
+        from atc_nf_env.episode import run_episode
         from atc_nf_env.policy import make_policy
         from atc_nf_env.scenarios import make_scenario
-        make_policy("mpc").reset(make_scenario("converging-3"), SimConfig(), 0)
-        entries = (kernel._advance_checked_one, kernel._advance_checked_batch, kernel._advance_checked_lanes)
-        print(all(entry in kernel._ENTRIES_CALLED and entry.signatures for entry in entries))
+        policy = make_policy("mpc")
+        policy.reset(make_scenario("converging-3"), SimConfig(), 0)
+        print(kernel._ENTRIES_CALLED == {kernel._advance_checked_lanes})
+        result = run_episode(policy, "converging-3", seed=0)
+        print(kernel._ENTRIES_CALLED == {kernel._advance_checked_lanes})
+        print(len(kernel._advance_checked_one.signatures), len(kernel._advance_checked_batch.signatures))
     """
     done = _run(code, tmp_path / "cache")
-    assert done.stdout.split() == ["True"]
-    assert done.stderr.count(NOTICE) == 1 and "about 35 s" in done.stderr
+    assert done.stdout.split() == ["True", "True", "0", "0"]
+    assert done.stderr.count(NOTICE) == 1
+    assert f"about {kernel._FIRST_COMPILE_S['_advance_checked_lanes']} s" in done.stderr

@@ -4,6 +4,7 @@ flies bit for bit the same trajectory, with the same outcome, in such a batch as
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
@@ -84,7 +85,7 @@ def test_lanes_fly_the_ordinary_steps() -> None:
     scratch = kernel.KernelScratch()
     kernel.advance(state, state[:, :, kernel.S_DEST_X : kernel.S_DEST_Y + 1].copy(), np.zeros((100, 2)), 300.0,
                    params, scratch=scratch)
-    ordinary = scratch.lane_world[:, kernel.W_ORDINARY, : kernel.LANE_CHUNK].reshape(-1)[:100]
+    ordinary = scratch.lane_world[:, kernel.W_ORDINARY, : kernel.lane_chunk(100)].reshape(-1)[:100]
     assert (ordinary == 1.0).all()
 
 
@@ -106,3 +107,63 @@ def test_own_gradient_alone_is_the_nf_gradient_without_neighbours(x: float, y: f
     assert (gx, gy) == (grad[0, 0], grad[0, 1])
     inv_len = consts[0]
     assert sgn_along == (1.0 if ed_x * ((x - wx) * inv_len) + ed_y * ((y - wy) * inv_len) >= 0.0 else -1.0)
+
+
+def _entries_called(monkeypatch, calls: list[str]) -> None:
+    for name in ("_advance_checked_one", "_advance_checked_batch", "_advance_checked_lanes"):
+        entry = getattr(kernel, name)
+
+        def spy(*arguments, _entry=entry, _name=name):
+            calls.append(_name)
+            return _entry(*arguments)
+
+        monkeypatch.setattr(kernel, name, spy)
+
+
+def test_after_load_paths_every_batch_size_flies_on_the_lanes_with_the_same_bits(monkeypatch) -> None:
+    """``load_paths`` (the MPC's reset) compiles the lane path alone and sends every batch
+    size to it: one world and small batches fly the bits the scalar paths fly."""
+    state, radius = _batch(15, seed=4)
+    params = SimConfig().to_params(radius)
+    wind = np.random.default_rng(4).normal(0.0, 10.0, (15, 2))
+    waypoints = state[:, :, kernel.S_DEST_X : kernel.S_DEST_Y + 1].copy()
+    scalar = {}
+    for n_worlds in (1, 2, 7, 15):
+        world = state[:n_worlds].copy()
+        trace = kernel.advance(world, waypoints[:n_worlds], wind[:n_worlds], 1800.0, params, record_every=2)
+        scalar[n_worlds] = (world, trace)
+    calls: list[str] = []
+    _entries_called(monkeypatch, calls)
+    kernel.load_paths(state[0], params)
+    assert kernel._lanes_for_every_size
+    for n_worlds in (1, 2, 7, 15):
+        calls.clear()
+        world = state[:n_worlds].copy()
+        trace = kernel.advance(world, waypoints[:n_worlds], wind[:n_worlds], 1800.0, params, record_every=2)
+        assert calls == ["_advance_checked_lanes"], n_worlds
+        assert np.array_equal(world, scalar[n_worlds][0]), n_worlds
+        for name in TRACE_FIELDS:
+            assert np.array_equal(getattr(trace, name), getattr(scalar[n_worlds][1], name)), (n_worlds, name)
+
+
+def test_load_paths_keeps_the_scalar_paths_for_a_law_the_lanes_do_not_fly(monkeypatch) -> None:
+    """The lanes fly k = 2 only: with another k, ``load_paths`` compiles the one-world and
+    batch paths and batches keep their path by size."""
+    state, radius = _batch(2, seed=5)
+    params = SimConfig(k=3.0).to_params(radius)
+    calls: list[str] = []
+    _entries_called(monkeypatch, calls)
+    kernel.load_paths(state[0], params)
+    assert not kernel._lanes_for_every_size
+    assert set(calls) <= {"_advance_checked_one", "_advance_checked_batch"}
+    calls.clear()
+    kernel.advance(state[:1].copy(), state[:1, :, kernel.S_DEST_X : kernel.S_DEST_Y + 1].copy(), np.zeros((1, 2)),
+                   300.0, params)
+    assert calls == ["_advance_checked_one"]
+
+
+def test_a_small_batch_is_spread_over_the_threads_in_chunks() -> None:
+    threads = numba.get_num_threads()
+    assert kernel.lane_chunk(1) == 1
+    assert kernel.lane_chunk(kernel.LANE_CHUNK * threads * 3) == kernel.LANE_CHUNK
+    assert kernel.lane_chunk(2 * threads) == 2
