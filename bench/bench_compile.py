@@ -3,8 +3,9 @@ empty numba cache, per path, each in a fresh process with a cache directory of i
 
 The paths are compiled when first used: one world (B = 1: the environments, a single
 simulation, the safety filter's prediction), the scalar batch (2 <= B < 16) and the lane
-path (B >= 16: the MPC's candidates, the vector envs); "all" flies B = 1, 2 and 1000 in one
-process, as the MPC demo does. CPU time rather than wall time: on a shared machine the wall
+path (B >= 16: the vector envs); "all" flies B = 1, 2 and 1000 in one process. The MPC's
+reset compiles the lane path alone and the process then flies every batch size on it
+(``kernel.load_paths``). CPU time rather than wall time: on a shared machine the wall
 time measures the other processes too. Reported: the median and the range over the
 repetitions, and the import of the package apart.
 
@@ -85,8 +86,9 @@ def main(argv: list[str] | None = None) -> int:
         f"`python bench/bench_compile.py --repeat {args.repeat}` — {machine()}. CPU time (user + sys) of a fresh "
         "process on an empty numba cache; each kernel path is compiled when first used (one world: the "
         "environments, a simulation, the safety filter; the scalar batch: 2–15 worlds; the lanes: 16 worlds or "
-        "more, the MPC's candidates and the vector envs), later runs load numba's cache. \"demo\" is `make "
-        "demo`'s command; its last column is the warm-up it reports as `compile_s` (wall s), the rest of the "
+        "more, the vector envs), later runs load numba's cache. \"demo\" is `make demo`'s command: the MPC's reset "
+        "compiles the lane path alone, and the process flies every batch on it, its candidates and the real world "
+        "(`kernel.load_paths`); its last column is the warm-up it reports as `compile_s` (wall s), the rest of the "
         "process being imports and the warm episode.",
         "",
         "| case (B flown) | CPU s: median [range] | imports CPU s (demo: compile_s) |",
