@@ -31,7 +31,7 @@ def study(model: str, scenario_name: str, seeds: int, stall: bool) -> dict:
     from atc_nf_env.scenarios import make_scenario
     from atc_nf_env.shield import SafetyFilter
 
-    shield = SafetyFilter(make_policy(model)) if stall else SafetyFilter(make_policy(model), stall_progress_nm=None)
+    shield = SafetyFilter(make_policy(model)) if stall else SafetyFilter(make_policy(model), progress_fraction=None)
     home = los = outside = handed = 0
     longest = 0.0
     failed, handed_seeds = [], []
