@@ -125,6 +125,29 @@ class Hold(Adversary):
         return view.positions.copy()
 
 
+class Mixed(Adversary):
+    """Aircraft i proposes as ``parts[i % len(parts)]`` does; with probability
+    ``garbage_rate`` a waypoint is replaced by NaN, ±inf or ±1e100 nm."""
+
+    def __init__(self, name: str, parts: list[Adversary], garbage_rate: float = 0.0) -> None:
+        super().__init__(name)
+        self.parts, self.garbage_rate = parts, garbage_rate
+
+    def reset(self, scenario, config, seed=None) -> None:
+        super().reset(scenario, config, seed)
+        for part in self.parts:
+            part.reset(scenario, config, seed)
+
+    def waypoints(self, view) -> np.ndarray:
+        proposals = [part.act(view) for part in self.parts]
+        n = len(view.positions)
+        waypoints = np.array([proposals[i % len(self.parts)][i] for i in range(n)], dtype=np.float64)
+        bad = self.rng.random((n, 2)) < self.garbage_rate
+        values = np.array([np.nan, np.inf, -np.inf, 1e100, -1e100])
+        waypoints[bad] = values[self.rng.integers(0, len(values), size=int(bad.sum()))]
+        return waypoints
+
+
 def make_proposer(name: str) -> Adversary:
     """The adversarial proposer of ``PROPOSERS`` (or ``off-A``/``oscillate-A`` for any angle
     A in degrees) named ``name``."""
