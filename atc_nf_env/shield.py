@@ -72,9 +72,10 @@ waypoint that is unsafe is changed like any other. Why these choices:
   ``D / (progress_fraction × 454 kt)`` plus two windows, D its distance at the start
   (2.7 h for 500 nm at the default); handed over, it flies home at about the nominal
   airspeed, inside the evaluator's 4-h limit for the encounters of the paper.
-- Its cost to a policy that does aim home is small: such a policy closes in at most
-  windows at nearly the full rate, and the homing waypoint is close to its own choice
-  where it does not (the measured cost is in the documentation's safety-filter page).
+- Its cost to a policy that does aim home is small: such a policy closes in at nearly
+  the full rate, and where the rule does take an aircraft, the homing waypoint is close
+  to the policy's own choice (the measured cost is on the documentation's safety-filter
+  page).
 
 The filter sees what the policy sees, the state and not the wind. Its wind estimate is
 the MCMC-MPC's "estimated" model: after each period, the drift of the aircraft from
@@ -194,9 +195,9 @@ class SafetyFilter:
             aircraft re-aimed home), periods of ``period_s``.
         envelope_margin_kt: the prediction keeps the airspeed this far inside
             [366, 540] kt, kt (the MCMC-MPC's default margin, 4 kt).
-        fallback: who decides when no alternative is safe: "mpc" (the registry's ``make_policy("mpc",
-            **mpc_settings)``, the MCMC-MPC), "least-bad" (the alternative that stayed
-            safe longest), a policy object (reset with the filter; given the filter's wind
+        fallback: who decides when no alternative is safe: "mpc" (the registry's
+            ``make_policy("mpc", **mpc_settings)``, the MCMC-MPC), "least-bad" (the
+            alternative that stayed safe longest), a policy object (reset with the filter; given the filter's wind
             estimate through ``set_wind_estimate(wind_kt)`` if it has one), or a factory
             called once without arguments for one.
         home_distance_nm: distance of the homing waypoint of the look-ahead period, nm.

@@ -15,6 +15,9 @@ family of proposers that do not try to be safe or to get home:
   square (inside and outside the workspace), seeded;
 - ``garbage``: the ``random`` proposer with, at random, NaN, ±inf, ±1e100 nm waypoints;
 - ``hold``: every waypoint on the aircraft itself (the NF's singular point);
+- ``behind``: every waypoint 100 nm behind the aircraft (the NF answers with a reverse
+  airspeed);
+- ``chase``: every aircraft aimed 100 nm past the next one (a collision course);
 - ``far``: every waypoint 1e4 nm out (outside the workspace) along the bearing + 90°.
 
 For each proposer and scenario it flies seeds 0..SEEDS-1 (σ = 5.17 m/s, 4-h limit) and
@@ -41,7 +44,7 @@ import numpy as np
 
 #: The families' names, in the table's order (``make_proposer`` builds each).
 PROPOSERS = ("off-0", "off-30", "off-60", "off-80", "off-90", "off-120", "off-150", "off-180", "oscillate-60",
-             "oscillate-120", "corner", "random", "garbage", "hold", "far")
+             "oscillate-120", "corner", "random", "garbage", "hold", "behind", "chase", "far")
 
 
 class Adversary:
@@ -148,6 +151,32 @@ class Mixed(Adversary):
         return waypoints
 
 
+class Behind(Adversary):
+    """Every waypoint ``distance_nm`` behind the aircraft, against its heading."""
+
+    def __init__(self, name: str, distance_nm: float = 100.0) -> None:
+        super().__init__(name)
+        self.distance_nm = distance_nm
+
+    def waypoints(self, view) -> np.ndarray:
+        heading = view.headings
+        return view.positions - self.distance_nm * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+
+
+class Chase(Adversary):
+    """Aircraft i aimed ``distance_nm`` past aircraft i + 1 (mod N), along the line to it."""
+
+    def __init__(self, name: str, distance_nm: float = 100.0) -> None:
+        super().__init__(name)
+        self.distance_nm = distance_nm
+
+    def waypoints(self, view) -> np.ndarray:
+        target = np.roll(view.positions, -1, axis=0)
+        line = target - view.positions
+        length = np.maximum(np.hypot(line[:, 0], line[:, 1]), 1e-9)
+        return target + self.distance_nm * line / length[:, None]
+
+
 def make_proposer(name: str) -> Adversary:
     """The adversarial proposer of ``PROPOSERS`` (or ``off-A``/``oscillate-A`` for any angle
     A in degrees) named ``name``."""
@@ -164,6 +193,10 @@ def make_proposer(name: str) -> Adversary:
         return RandomWaypoints(name, garbage=True)
     if name == "hold":
         return Hold(name)
+    if name == "behind":
+        return Behind(name)
+    if name == "chase":
+        return Chase(name)
     if name == "far":
         return OffBearing(name, 90.0, distance_nm=1e4)
     raise ValueError(f"proposer {name!r}: allowed: {', '.join(PROPOSERS)}, off-A or oscillate-A (A in degrees)")

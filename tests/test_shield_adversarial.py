@@ -1,7 +1,8 @@
 """The safety filter against any proposer: hypothesis draws adversarial proposers (fixed or
 alternating angles off the bearing home from 0 to 180°, the same far point for everyone,
 random waypoints in and out of the workspace, waypoints on the aircraft or thousands of nm
-out, NaN, inf and 1e100 nm now and then, a different one per aircraft) and the filter, with
+out or behind it, collision courses, NaN, inf and 1e100 nm now and then, a different one
+per aircraft) and the filter, with
 its defaults, must bring every aircraft home within the evaluator's 4-h limit with no loss
 of separation and no integration step outside [366, 540] kt, under the paper's wind
 (σ = 5.17 m/s), without an exception.
@@ -41,6 +42,8 @@ single = st.one_of(
     st.floats(0.01, 3.0).map(lambda s: adversaries.RandomWaypoints("random", spread=s)),
     st.just(adversaries.RandomWaypoints("garbage", garbage=True)),
     st.just(adversaries.Hold("hold")),
+    st.floats(1.0, 300.0).map(lambda d: adversaries.Behind("behind", d)),
+    st.floats(0.0, 300.0).map(lambda d: adversaries.Chase("chase", d)),
 )
 proposers = st.builds(
     lambda parts, rate: adversaries.Mixed("mixed", parts, rate),
