@@ -41,11 +41,41 @@ so it wraps the MCMC-MPC, the NF alone and trained agents alike (``atc-nf fly|ev
    ``fallback``), or the alternative that stayed safe for the most integration steps
    (``fallback="least-bad"``).
 
-The stall rule (``stall_progress_nm``, ``stall_periods``; on by default) keeps a policy
-from holding an aircraft short of home, which no safety check catches: an aircraft no
-closer to its destination than ``stall_periods`` periods ago is, from then on until it
-arrives, flown by the fallback policy's decision (the homing waypoint with
-``fallback="least-bad"``), before the waypoint set is checked as above.
+The progress rule (``progress_fraction``, ``progress_periods``; on by default) keeps a
+policy from holding an aircraft short of home or flying it away, which no safety check
+catches. Over every window of ``progress_periods`` periods, a flying aircraft must come
+closer to its destination by at least ``progress_fraction`` of what a direct flight at the
+nominal airspeed (454 kt) covers in the window (by default 0.5 × 113.5 nm over 15 min),
+or, if it was within that much (plus the arrival tolerance Δ) of home at the window's
+start, arrive. One that does not is taken from the policy until it arrives: from then on
+its waypoint is the homing waypoint (``home_distance_nm`` toward its destination, turned at
+most ``recovery_angle_rad`` from its heading: the NF's own way home, the one the
+look-ahead period flies), before the waypoint set is checked as above, so that a homing
+waypoint that is unsafe is changed like any other. Why these choices:
+
+- The rule acts early, a window of 15 min after the aircraft stops closing in, so that the
+  aircraft is still where the NF's speed law is calibrated (within a few hundred nm of the
+  encounter) when it turns home; handed over 600-850 nm out and heading away, aircraft
+  once left the envelope by up to 1,077 kt.
+- It asks for a share of a direct flight's progress, not merely some progress: a proposer
+  holding every aircraft 30-80° off its bearing home closes in slowly, then circles its
+  destination forever; asking only "no farther than 4 periods ago" caught it near the
+  destination, where it kept circling.
+- Near home it asks for arrival, not for a share of what is left: a share of what is left
+  can be closed forever without arriving.
+- Handed-over aircraft fly the homing waypoint, not the MCMC-MPC: the MPC optimizes the
+  distance left at its horizon's end and, near a destination, finds circling as good as
+  arriving; measured, it kept such aircraft circling until the time limit. The homing
+  waypoint takes an aircraft through its destination.
+- What it bounds: until handed over, an aircraft closes ``progress_fraction`` × 454 kt
+  on average over every window, so it is home or handed over within about
+  ``D / (progress_fraction × 454 kt)`` plus two windows, D its distance at the start
+  (2.7 h for 500 nm at the default); handed over, it flies home at about the nominal
+  airspeed, inside the evaluator's 4-h limit for the encounters of the paper.
+- Its cost to a policy that does aim home is small: such a policy closes in at nearly
+  the full rate, and where the rule does take an aircraft, the homing waypoint is close
+  to the policy's own choice (the measured cost is on the documentation's safety-filter
+  page).
 
 The filter sees what the policy sees, the state and not the wind. Its wind estimate is
 the MCMC-MPC's "estimated" model: after each period, the drift of the aircraft from
@@ -60,7 +90,8 @@ the MPC fallback,
 aircraft-decisions whose proposed waypoint was not a finite point of the workspace,
 decisions applied although predicted unsafe (``shield_unresolved``: a least-bad fallback,
 or an MPC decision the filter's prediction still finds unsafe), aircraft handed over by
-the stall rule and the decisions in which it flew one.
+the progress rule (``shield_stalled_aircraft``) and the decisions in which one flew its
+homing waypoint (``shield_homing_decisions``).
 
 Units: nautical miles, knots, seconds, radians.
 """
@@ -102,7 +133,7 @@ from atc_nf_env.shield_prediction import (
     _structured_alternatives,
 )
 from atc_nf_env.simulation import WorldView
-from atc_nf_env.units import DECISION_PERIOD_S
+from atc_nf_env.units import AIRSPEED_NOMINAL_KT, DECISION_PERIOD_S, SECONDS_PER_HOUR
 
 #: The fallbacks by name: the registry's MCMC-MPC, or the alternative that stayed safe longest.
 FALLBACKS = ("mpc", "least-bad")
@@ -136,6 +167,11 @@ DISTANCES_NM = (100.0, 130.0)
 _TURNS, _JOINT_TURNS, _DISTANCES = np.array(TURNS_RAD), np.array(JOINT_TURNS_RAD), np.array(DISTANCES_NM)
 #: The tiers of alternatives, tried in this order (see the module's docstring).
 ALTERNATIVE_KINDS = ("single", "joint", "sampled")
+#: An aircraft handed over by the progress rule that is within this distance of its
+#: destination (nm) and heading more than ``APPROACH_TURN_RAD`` (rad) off its bearing flies
+#: straight on before it turns home (see ``SafetyFilter._handover_waypoints``).
+APPROACH_RADIUS_NM = 60.0
+APPROACH_TURN_RAD = math.radians(75.0)
 #: Waypoint sets of the sampled tier (each flown only until the first safe one).
 SAMPLED_ALTERNATIVES = 64
 #: Tag of the sampled tier's random stream (the episode's seed is the other part).
@@ -159,10 +195,9 @@ class SafetyFilter:
             aircraft re-aimed home), periods of ``period_s``.
         envelope_margin_kt: the prediction keeps the airspeed this far inside
             [366, 540] kt, kt (the MCMC-MPC's default margin, 4 kt).
-        fallback: who decides when no alternative is safe (and flies the aircraft the
-            stall rule hands over): "mpc" (the registry's ``make_policy("mpc",
-            **mpc_settings)``, the MCMC-MPC), "least-bad" (the alternative that stayed
-            safe longest), a policy object (reset with the filter; given the filter's wind
+        fallback: who decides when no alternative is safe: "mpc" (the registry's
+            ``make_policy("mpc", **mpc_settings)``, the MCMC-MPC), "least-bad" (the
+            alternative that stayed safe longest), a policy object (reset with the filter; given the filter's wind
             estimate through ``set_wind_estimate(wind_kt)`` if it has one), or a factory
             called once without arguments for one.
         home_distance_nm: distance of the homing waypoint of the look-ahead period, nm.
@@ -173,15 +208,14 @@ class SafetyFilter:
             proposal's fields among them (``atc_nf_env.proposals.PROPOSAL_FIELDS``) also
             shape the sampled tier, whatever the fallback. With another fallback, only
             those fields are allowed.
-        stall_progress_nm: the stall rule: an aircraft that came less than this much
-            closer to its destination over the last ``stall_periods`` periods is flown by
-            the MCMC-MPC's decision from then on until it arrives (by the homing waypoint
-            of the look-ahead period with ``fallback="least-bad"``), nm; None turns the
-            rule off. The default, 0 nm, hands over an aircraft no closer to home than
-            ``stall_periods`` periods ago (holding, circling, flown away). A positive
-            value asks at most half of what was left at the window's start, so that an
-            aircraft on its final approach is not handed over for having little left.
-        stall_periods: the stall rule's window, periods of ``period_s``.
+        progress_fraction: the progress rule (see the module's docstring): over every
+            window of ``progress_periods`` periods a flying aircraft must close this
+            fraction of what a direct flight at 454 kt covers in the window (or arrive, if
+            it was within that of home), or it flies its homing waypoint from then on until
+            it arrives; in [0, 1], None turns the rule off (the filter then guards safety
+            only, and a proposer may keep aircraft from home). 0 asks only that an aircraft
+            be no farther from home than a window ago.
+        progress_periods: the progress rule's window, periods of ``period_s``.
 
     Example:
         >>> from atc_nf_env.episode import run_episode
@@ -206,8 +240,8 @@ class SafetyFilter:
         recovery_angle_rad: float = math.pi / 3,
         period_s: float = DECISION_PERIOD_S,
         mpc_settings: dict[str, Any] | None = None,
-        stall_progress_nm: float | None = 0.0,
-        stall_periods: int = 4,
+        progress_fraction: float | None = 0.5,
+        progress_periods: int = 3,
     ) -> None:
         if isinstance(policy, SafetyFilter):
             raise TypeError("policy is already a SafetyFilter; wrap the policy itself once")
@@ -238,17 +272,18 @@ class SafetyFilter:
             self._proposal = WaypointProposal(**proposal_settings)
         except ValueError as error:
             raise ValueError(f"mpc_settings = {self.mpc_settings!r}: {error}") from None
-        self.stall_progress_nm = (
-            None if stall_progress_nm is None else _finite_number("stall_progress_nm", stall_progress_nm, -1000.0, 1000.0)
+        self.progress_fraction = (
+            None if progress_fraction is None else _finite_number("progress_fraction", progress_fraction, 0.0, 1.0)
         )
-        if isinstance(stall_periods, bool) or not isinstance(stall_periods, int) or not 1 <= stall_periods <= 100:
-            raise ValueError(f"stall_periods = {stall_periods!r}: must be an integer in [1, 100]")
-        self.stall_periods = stall_periods
+        if (isinstance(progress_periods, bool) or not isinstance(progress_periods, (int, np.integer))
+                or not 1 <= progress_periods <= 100):
+            raise ValueError(f"progress_periods = {progress_periods!r}: must be an integer in [1, 100]")
+        self.progress_periods = int(progress_periods)
         self.name = f"{getattr(policy, 'name', type(policy).__name__)}+shield"
         self._params: np.ndarray | None = None
         self._scratch = kernel.KernelScratch()
         self._counts = dict.fromkeys(SHIELD_INFO_KEYS, 0)
-        self._memory = DecisionMemory(0, self.stall_periods)
+        self._memory = DecisionMemory(0, self.progress_periods)
 
     def _make_fallback(self, fallback: Fallback) -> Policy | None:
         """The fallback policy of ``fallback`` (None for "least-bad")."""
@@ -295,11 +330,15 @@ class SafetyFilter:
         self._period_steps = kernel.steps_for(self.period_s, config.dt_s)
         self._waypoint_limit_nm = 0.99 * (scenario.workspace_radius_nm - config.aircraft_radius_nm)
         self._workspace_radius_nm = float(scenario.workspace_radius_nm)
+        # The progress rule's ask over a window: its share of a direct flight at the nominal airspeed.
+        self._progress_asked_nm = (None if self.progress_fraction is None else self.progress_fraction
+                                   * AIRSPEED_NOMINAL_KT * self.progress_periods * self.period_s / SECONDS_PER_HOUR)
+        self._arrival_nm = float(config.arrival_tolerance_nm)
         self._rng = np.random.default_rng([0 if seed is None else seed, _SAMPLE_STREAM])
         self._predictor = PlanPredictor(self._params, self._period_steps, self.lookahead_periods,
                                         self.home_distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm)
         self._counts = dict.fromkeys(SHIELD_INFO_KEYS, 0)
-        self._memory = DecisionMemory(scenario.n_aircraft, self.stall_periods)
+        self._memory = DecisionMemory(scenario.n_aircraft, self.progress_periods)
         if not SafetyFilter._batch_warm:
             # Load the batched kernel (numba's cache, or a compilation) now, not inside the
             # first timed decision that needs alternatives.
@@ -337,31 +376,26 @@ class SafetyFilter:
         if not (np.abs(proposal) <= self._workspace_radius_nm).all():  # NaN fails the test too
             proposal = self._replace_invalid(state, proposal)
         memory = self._memory
-        # The routine decision, wind estimate and stall rule included, in one compiled call
+        # The routine decision, wind estimate and progress rule included, in one compiled call
         # (``PlanPredictor.screen``): its Python took about a fifth of a shielded decision.
         verdict = self._predictor.screen(state, proposal, float(view.time_s), self.period_s, memory,
-                                         self.stall_progress_nm)
+                                         self._progress_asked_nm, self._arrival_nm)
         if verdict == SCREEN_NOT_FINITE:  # the proposal was made finite above: the state is not
             raise ValueError(f"the state has NaN or inf values; the filter cannot predict it: {state.tolist()}")
         counts = self._counts
         counts["shield_decisions"] += 1
-        counts["shield_stalled_aircraft"] = int(memory.counts[1])  # the stall rule counts them in ``screen``
+        counts["shield_stalled_aircraft"] = int(memory.counts[1])  # the progress rule counts them in ``screen``
         if verdict == SCREEN_SAFE or verdict == SCREEN_NONE_FLYING:
             return proposal
         flying = state[:, S_STATUS] == FLYING
         planned = memory.planned[0].copy()
         homed = verdict == SCREEN_HOMED
         if homed:
-            # The stall rule: the fallback policy's decision for the aircraft handed over (the
-            # filter's wind estimate shared; the homing waypoint without one), every other
-            # aircraft keeping the policy's waypoint.
+            # The progress rule: the aircraft handed over fly their homing waypoints (the
+            # module's docstring says why not the fallback policy's), every other aircraft
+            # keeping the policy's waypoint.
             handed = np.flatnonzero(memory.homebound & flying)
-            if self._fallback_policy is None:
-                planned[handed] = self._homing(state, planned)[handed]
-            else:
-                self._share_wind_estimate()
-                decided = np.asarray(self._fallback_policy.act(view), dtype=np.float64)
-                planned[handed] = decided[handed]
+            planned[handed] = self._handover_waypoints(state, planned)[handed]
             outcome = self._check(state, planned)
             counts["shield_homing_decisions"] += 1
             if outcome[0] is None:
@@ -512,6 +546,34 @@ class SafetyFilter:
             # ``out`` is also what the others keep: their rows are read back unchanged.
             _homing_waypoints(world, out, self.home_distance_nm, self.recovery_angle_rad, self._waypoint_limit_nm, out)
         return home[0] if one else home
+
+    def _handover_waypoints(self, state: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """The waypoints (N, 2) nm of aircraft handed over by the progress rule, in world
+        ``state`` (N, N_STATE): the homing waypoint (``_homing``), except for an aircraft
+        within ``APPROACH_RADIUS_NM`` of its destination and heading more than
+        ``APPROACH_TURN_RAD`` off its bearing there, which flies straight on,
+        ``home_distance_nm`` ahead, until it is farther out or better aligned.
+
+        Why: the homing waypoint turns an aircraft at most ``recovery_angle_rad`` a period,
+        and the NF's path to a waypoint curves where the heading is off the line to it; close
+        to home and badly aligned, the aircraft then passes its destination wide of the
+        arrival tolerance and circles it (measured: one aircraft 10-40 nm out, 90-135° off,
+        circled for 3 h). Flying out first and turning back from beyond 60 nm, it lined up and
+        arrived from every start tried (6-65 nm out, 45-170° off, within 45 min). The
+        ``keep`` rows (N, 2) are returned for the aircraft not flying."""
+        waypoints = self._homing(state, keep)
+        position = state[:, S_X : S_Y + 1]
+        to_dest = state[:, S_DEST_X : S_DEST_Y + 1] - position
+        heading = state[:, S_HEADING]
+        error = (np.arctan2(to_dest[:, 1], to_dest[:, 0]) - heading + np.pi) % (2.0 * np.pi) - np.pi
+        straight = ((state[:, S_STATUS] == FLYING) & (np.hypot(to_dest[:, 0], to_dest[:, 1]) < APPROACH_RADIUS_NM)
+                    & (np.abs(error) > APPROACH_TURN_RAD))
+        if straight.any():
+            ahead = position + self.home_distance_nm * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+            limit = self._waypoint_limit_nm
+            scale = np.minimum(1.0, limit / np.maximum(np.hypot(ahead[:, 0], ahead[:, 1]), 1e-12))
+            waypoints[straight] = (ahead * scale[:, None])[straight]
+        return waypoints
 
     def _alternatives(
         self, view: WorldView, planned: np.ndarray, blamed: np.ndarray, kind: str

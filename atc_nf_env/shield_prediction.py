@@ -47,7 +47,7 @@ _NON_FINITE_MESSAGE = ("the safety filter's prediction produced NaN or inf; the 
                        "range the NF is calibrated for")
 
 #: ``PlanPredictor.screen``'s verdicts on a proposal: safe as proposed, unsafe, some
-#: aircraft handed to the stall rule (not predicted: the caller changes their waypoints
+#: aircraft handed over by the progress rule (not predicted: the caller changes their waypoints
 #: first), no aircraft flying (nothing to check), a NaN or inf in the proposal.
 SCREEN_SAFE, SCREEN_UNSAFE, SCREEN_HOMED, SCREEN_NONE_FLYING, SCREEN_NOT_FINITE = range(5)
 
@@ -243,26 +243,26 @@ class DecisionMemory:
     """What the safety filter carries from one decision to the next, as arrays that the
     compiled ``PlanPredictor.screen`` reads and updates in place.
 
-    Attributes (N aircraft, P = ``stall_periods``):
+    Attributes (N aircraft, P = ``progress_periods``):
         wind_kt: (2,) the wind estimate (east, north), kt.
         predicted: (N, 2) where the applied waypoints were predicted to put each aircraft
             after one period, nm, and ``predicted_alive`` (N,) whether it was still flying;
             valid while ``timing[0]`` is 1, for the decision at ``timing[1]`` s.
         distances: (P + 1, N) each aircraft's distance to its destination at the last
-            decisions one period apart, nm (the stall rule's window), at the times
+            decisions one period apart, nm (the progress rule's window), at the times
             ``history_time`` (P + 1,) s; ``counts[0]`` rows are filled.
-        homebound: (N,) aircraft handed over by the stall rule until they arrive.
+        homebound: (N,) aircraft handed over by the progress rule until they arrive.
         counts: (2,) int64: the rows of ``distances`` filled, and the aircraft handed over
-            by the stall rule so far.
+            by the progress rule so far.
     """
 
-    def __init__(self, n_aircraft: int, stall_periods: int) -> None:
+    def __init__(self, n_aircraft: int, progress_periods: int) -> None:
         self.wind_kt = np.zeros(2)
         self.predicted = np.zeros((n_aircraft, 2))
         self.predicted_alive = np.zeros(n_aircraft, dtype=np.bool_)
         self.timing = np.zeros(2)
-        self.distances = np.zeros((stall_periods + 1, n_aircraft))
-        self.history_time = np.zeros(stall_periods + 1)
+        self.distances = np.zeros((progress_periods + 1, n_aircraft))
+        self.history_time = np.zeros(progress_periods + 1)
         self.homebound = np.zeros(n_aircraft, dtype=np.bool_)
         self.counts = np.zeros(2, dtype=np.int64)
         self.planned = np.zeros((1, n_aircraft, 2))
@@ -285,8 +285,9 @@ def _screen(
     proposal: np.ndarray,
     time_s: float,
     period_s: float,
-    stall_on: bool,
-    stall_progress_nm: float,
+    progress_on: bool,
+    progress_asked_nm: float,
+    arrival_nm: float,
     wind: np.ndarray,
     timing: np.ndarray,
     predicted: np.ndarray,
@@ -318,8 +319,8 @@ def _screen(
 ) -> int:
     """The safety filter's decision up to its verdict on the proposal, in one compiled call
     (``PlanPredictor.screen``): the wind estimate corrected by the drift from the last
-    prediction, the stall rule's window, the planned waypoints (the proposal for the
-    flying aircraft, the current waypoints for the others) and, unless the stall rule
+    prediction, the progress rule's window, the planned waypoints (the proposal for the
+    flying aircraft, the current waypoints for the others) and, unless the progress rule
     hands an aircraft over, their prediction. Compiled without fast-math: the finiteness
     checks would be compiled away under no-NaN, no-inf flags, and the sums must round as
     the Python they replace did."""
@@ -352,10 +353,10 @@ def _screen(
     if not any_flying:
         return SCREEN_NONE_FLYING
     homed = False
-    if stall_on:
-        # The stall rule's window: one row per decision, restarted where a decision is not
-        # one period after the last; an aircraft no closer to home than stall_periods
-        # periods ago is handed over until it arrives.
+    if progress_on:
+        # The progress rule's window: one row per decision, restarted where a decision is
+        # not one period after the last; an aircraft that came less than the progress asked
+        # closer to home over the window is handed over until it arrives.
         rows = counts[0]
         if rows > 0 and abs(time_s - history_time[rows - 1] - period_s) > 1e-6:
             rows = 0
@@ -365,9 +366,11 @@ def _screen(
         rows += 1
         if rows > distances.shape[0] - 1:
             for i in range(n):
-                # On the final approach less is left to close than the rule asks: half of
-                # what was left at the window's start is then the progress asked for.
-                asked = min(stall_progress_nm, 0.5 * distances[0, i])
+                # Within the progress asked of home (plus the arrival tolerance) at the
+                # window's start, an aircraft is asked to close all of it, i.e. to arrive:
+                # asking a fraction of what is left would let it close in geometrically
+                # and never arrive.
+                asked = min(progress_asked_nm, distances[0, i] - arrival_nm)
                 if (state[i, S_STATUS] == FLYING and not homebound[i]
                         and distances[rows - 1, i] > distances[0, i] - asked):
                     homebound[i] = True
@@ -529,13 +532,17 @@ class PlanPredictor:
         time_s: float,
         period_s: float,
         memory: DecisionMemory,
-        stall_progress_nm: float | None,
+        progress_asked_nm: float | None,
+        arrival_nm: float = 0.0,
     ) -> int:
         """The safety filter's routine decision in one compiled call: correct
-        ``memory.wind_kt`` by the drift from the last prediction, update the stall rule's
-        window (``stall_progress_nm`` None: no rule), plan the proposal (N, 2) nm for the
-        flying aircraft (``memory.planned[0]``) and, unless the stall rule hands an aircraft
-        over, predict it from ``state`` (N, N_STATE), a C-contiguous float64 array, at
+        ``memory.wind_kt`` by the drift from the last prediction, update the progress rule's
+        window and hand over (``memory.homebound``) every flying aircraft that came less than
+        ``progress_asked_nm`` closer to home over it, or, when it was within
+        ``progress_asked_nm + arrival_nm`` of home at the window's start, did not arrive
+        (``progress_asked_nm`` None: no rule), plan the proposal (N, 2) nm for the flying
+        aircraft (``memory.planned[0]``) and, unless the rule hands an aircraft over,
+        predict it from ``state`` (N, N_STATE), a C-contiguous float64 array, at
         ``time_s`` s, with periods of ``period_s`` s. Safe: ``memory`` remembers where the
         prediction puts the aircraft after one period.
 
@@ -551,8 +558,8 @@ class PlanPredictor:
         self.survived[0] = -1
         grad, command = self._grad, self._command
         verdict = _screen(
-            state, proposal, time_s, period_s, stall_progress_nm is not None,
-            0.0 if stall_progress_nm is None else stall_progress_nm, memory.wind_kt, memory.timing,
+            state, proposal, time_s, period_s, progress_asked_nm is not None,
+            0.0 if progress_asked_nm is None else progress_asked_nm, arrival_nm, memory.wind_kt, memory.timing,
             memory.predicted, memory.predicted_alive, memory.distances, memory.history_time, memory.homebound,
             memory.counts, memory.planned, self.params, self.period_steps, self.lookahead_periods, *self._homing,
             self._world, self._home, grad, command, self._aircraft_lanes, self._per_aircraft, self._counts,

@@ -1,12 +1,13 @@
-"""The safety filter's stall rule, off and on, per run.
+"""The safety filter's progress rule, off and on, per run.
 
-An aircraft that the wrapped policy holds, circles or flies away from home (the filter
-only guards safety, so it lets that pass) keeps a run from bringing every aircraft home.
-The filter's stall rule (on by default: ``stall_progress_nm=0.0``, ``stall_periods=4``)
-hands an aircraft that came no closer to its destination over the last 4 periods to the
-MCMC-MPC's decision until it arrives. For each model and scenario this flies seeds
-0..SEEDS-1 (σ = 5.17 m/s, the evaluator's 4-h limit) inside the filter with the rule off
-(``stall_progress_nm=None``) and on (the defaults), and
+An aircraft that the wrapped policy holds, circles or flies away from home (the safety
+checks let that pass) keeps a run from bringing every aircraft home. The filter's progress
+rule (on by default: ``progress_fraction=0.5``, ``progress_periods=3``) takes from the
+policy an aircraft that closed less than half of a direct flight's progress at 454 kt over
+the last 3 periods (or, that close to home, did not arrive) and flies it by its homing
+waypoint until it arrives. For each model and scenario this flies seeds 0..SEEDS-1
+(σ = 5.17 m/s, the evaluator's 4-h limit) inside the filter with the rule off
+(``progress_fraction=None``) and on (the defaults), and
 prints per run: runs with every aircraft home, runs with LoS, runs with any integration
 step outside [366, 540] kt, aircraft handed over, the longest flight, and the seeds that
 failed or were handed over.
@@ -25,13 +26,13 @@ from pathlib import Path
 from _report import publish  # bench/ is on sys.path when run as a script
 
 
-def study(model: str, scenario_name: str, seeds: int, stall: bool) -> dict:
+def study(model: str, scenario_name: str, seeds: int, rule: bool) -> dict:
     from atc_nf_env.episode import run_episode
     from atc_nf_env.policy import make_policy
     from atc_nf_env.scenarios import make_scenario
     from atc_nf_env.shield import SafetyFilter
 
-    shield = SafetyFilter(make_policy(model)) if stall else SafetyFilter(make_policy(model), stall_progress_nm=None)
+    shield = SafetyFilter(make_policy(model)) if rule else SafetyFilter(make_policy(model), progress_fraction=None)
     home = los = outside = handed = 0
     longest = 0.0
     failed, handed_seeds = [], []
@@ -62,28 +63,29 @@ def main(argv: list[str] | None = None) -> int:
     if args.seeds < 1:
         parser.error("--seeds must be >= 1")
     rows = [
-        "| scenario | model | stall rule | runs | every aircraft home | runs with LoS | runs outside envelope "
-        "| aircraft handed to the MPC | longest flight (min) | seeds not home | seeds handed over |",
+        "| scenario | model | progress rule | runs | every aircraft home | runs with LoS | runs outside envelope "
+        "| aircraft handed over | longest flight (min) | seeds not home | seeds handed over |",
         "|---|---|---|---:|---:|---:|---:|---:|---:|---|---|",
     ]
     for scenario in [s for s in args.scenarios.split(",") if s]:
         for model in [m for m in args.models.split(",") if m]:
-            for stall in (False, True):
-                r = study(model, scenario, args.seeds, stall)
+            for rule in (False, True):
+                r = study(model, scenario, args.seeds, rule)
                 rows.append(
-                    f"| {scenario} | {Path(model).stem} | {'on' if stall else 'off'} | {args.seeds} | {r['home']} "
+                    f"| {scenario} | {Path(model).stem} | {'on' if rule else 'off'} | {args.seeds} | {r['home']} "
                     f"| {r['los']} | {r['outside']} | {r['handed']} | {r['longest']:.1f} "
                     f"| {' '.join(map(str, r['failed'])) or '—'} | {' '.join(map(str, r['handed_seeds'])) or '—'} |"
                 )
                 print(rows[-1], flush=True)
     text = "\n".join([
-        "## Safety filter: the stall rule" + ("" if args.section == "shield-stall" else f" ({args.scenarios})"),
+        "## Safety filter: the progress rule" + ("" if args.section == "shield-stall" else f" ({args.scenarios})"),
         "",
         f"`python bench/shield_stall_study.py --models {args.models} --scenarios {args.scenarios} --seeds "
         f"{args.seeds}" + ("" if args.section == "shield-stall" else f" --section {args.section}") + "` — each model "
-        "inside `atc_nf_env.shield.SafetyFilter` with the stall rule off (`stall_progress_nm=None`) and on (the "
-        "default: an aircraft no closer to home than 4 periods ago is flown by the MCMC-MPC's decision until it "
-        "arrives), held-out seeds from 0, σ = 5.17 m/s, 4-h limit; safety per run.",
+        "inside `atc_nf_env.shield.SafetyFilter` with the progress rule off (`progress_fraction=None`) and on (the "
+        "default: an aircraft that closed less than half of a direct flight's progress over the last 3 periods, or "
+        "did not arrive from that close, flies its homing waypoint until it arrives), held-out seeds from 0, "
+        "σ = 5.17 m/s, 4-h limit; safety per run.",
         "",
         *rows,
     ])

@@ -385,9 +385,9 @@ class Sideways(AimThrough):
         return waypoints
 
 
-def test_the_stall_rule_hands_a_holding_aircraft_to_the_mpc():
+def test_the_progress_rule_flies_a_holding_aircraft_home():
     scenario = make_scenario("converging-3")
-    plain = SafetyFilter(Sideways(), stall_progress_nm=None, mpc_settings={"extractions": 64})
+    plain = SafetyFilter(Sideways(), progress_fraction=None, mpc_settings={"extractions": 64})
     off = run_episode(plain, scenario, seed=0, max_time_s=7200).metrics
     assert not off.arrived[0] and plain.episode_info()["shield_stalled_aircraft"] == 0
     ruled = SafetyFilter(Sideways(), mpc_settings={"extractions": 64})  # the rule is on by default
@@ -395,10 +395,13 @@ def test_the_stall_rule_hands_a_holding_aircraft_to_the_mpc():
     info = ruled.episode_info()
     assert info["shield_stalled_aircraft"] >= 1 and info["shield_homing_decisions"] >= 1
     assert on.success and on.los_count == 0 and on.worst_excursion_kt == 0.0
-    with pytest.raises(ValueError, match="stall_periods"):
-        SafetyFilter(AimThrough(), stall_periods=0)
-    with pytest.raises(ValueError, match="stall_progress_nm"):
-        SafetyFilter(AimThrough(), stall_progress_nm=float("inf"))
+    with pytest.raises(ValueError, match="progress_periods"):
+        SafetyFilter(AimThrough(), progress_periods=0)
+    for bad in (float("inf"), -0.1, 1.5):
+        with pytest.raises(ValueError, match="progress_fraction"):
+            SafetyFilter(AimThrough(), progress_fraction=bad)
+    with pytest.raises(TypeError):
+        SafetyFilter(AimThrough(), stall_progress_nm=0.0)  # the former rule's setting: unknown now
 
 
 class SampledOnly(SafetyFilter):
@@ -581,7 +584,7 @@ def test_first_safe_of_a_batch_is_the_first_candidate_safe_alone(scenario, seed,
             assert np.array_equal(batch_blamed[m], alone[m][2])
 
 
-def _screen_setup(n_aircraft: int = 3, stall_periods: int = 2):
+def _screen_setup(n_aircraft: int = 3, progress_periods: int = 2):
     from atc_nf_env.config import SimConfig
     from atc_nf_env.shield_prediction import DecisionMemory, PlanPredictor
     from atc_nf_env.simulation import initial_state
@@ -593,7 +596,7 @@ def _screen_setup(n_aircraft: int = 3, stall_periods: int = 2):
     state = np.ascontiguousarray(initial_state(scenario)[0])
     to_dest = scenario.dest_xy - state[:, :2]
     proposal = state[:, :2] + 100.0 * to_dest / np.hypot(*to_dest.T)[:, None]
-    return predictor, DecisionMemory(n_aircraft, stall_periods), state, np.ascontiguousarray(proposal)
+    return predictor, DecisionMemory(n_aircraft, progress_periods), state, np.ascontiguousarray(proposal)
 
 
 def test_the_screen_corrects_the_wind_estimate_by_the_mean_drift_exactly():
@@ -618,7 +621,7 @@ def test_the_screen_hands_over_an_aircraft_no_closer_to_home_after_the_window():
     from atc_nf_env.kernel import S_DEST_X, S_X
     from atc_nf_env.shield_prediction import SCREEN_HOMED, SCREEN_SAFE
 
-    predictor, memory, state, proposal = _screen_setup(stall_periods=2)
+    predictor, memory, state, proposal = _screen_setup(progress_periods=2)
     verdicts = []
     for k in range(3):  # aircraft 0 drifting away from home, the others closing in
         moved = state.copy()
@@ -627,32 +630,35 @@ def test_the_screen_hands_over_an_aircraft_no_closer_to_home_after_the_window():
     assert verdicts == [SCREEN_SAFE, SCREEN_SAFE, SCREEN_HOMED]
     assert memory.homebound.tolist() == [True, False, False] and memory.counts[1] == 1
     # A gap of more than one period restarts the window: no aircraft is handed over again.
-    fresh = _screen_setup(stall_periods=2)[1]
+    fresh = _screen_setup(progress_periods=2)[1]
     times = (0.0, 300.0, 900.0, 1200.0)
     assert [predictor.screen(state, proposal, t, 300.0, fresh, 0.0) for t in times][-1] == SCREEN_SAFE
     assert not fresh.homebound.any() and fresh.counts[1] == 0
 
 
-def test_a_positive_stall_progress_asks_at_most_half_of_what_was_left_at_the_windows_start():
-    """30 nm asked over the window: an aircraft 250 nm out must close 30 nm, one 20 nm out
-    only 10 nm (its final approach), so 20 → 8 nm passes and 20 → 12 nm is handed over."""
+def test_the_progress_rule_asks_its_share_far_out_and_arrival_close_in():
+    """30 nm asked over the window, arrival within 5 nm: far out an aircraft must close
+    30 nm (250 → 220 passes, 250 → 225 is handed over); one that started the window within
+    30 + 5 nm of home must arrive (20 → 6 nm, still flying, is handed over), while one 40 nm
+    out may close its 30 nm (40 → 10 passes)."""
     from atc_nf_env.kernel import S_DEST_X, S_DEST_Y, S_X, S_Y
 
-    predictor, memory, state, proposal = _screen_setup(stall_periods=2)
-    start, end = np.array([20.0, 20.0, 250.0]), np.array([12.0, 8.0, 215.0])
+    predictor, memory, state, proposal = _screen_setup(n_aircraft=4, progress_periods=2)
+    start, end = np.array([250.0, 250.0, 20.0, 40.0]), np.array([220.0, 225.0, 6.0, 10.0])
     for k in range(3):
         moved = state.copy()
         moved[:, S_X] = moved[:, S_DEST_X] + start + (end - start) * k / 2
         moved[:, S_Y] = moved[:, S_DEST_Y]
-        predictor.screen(moved, proposal, 300.0 * k, 300.0, memory, 30.0)
-    assert memory.homebound.tolist() == [True, False, False] and memory.counts[1] == 1
+        predictor.screen(moved, proposal, 300.0 * k, 300.0, memory, 30.0, 5.0)
+    assert memory.homebound.tolist() == [False, True, True, False] and memory.counts[1] == 2
 
 
 class _PythonMemory:
-    """The filter's wind estimate and stall rule as Python computed them before they moved
+    """The filter's wind estimate and progress rule as Python computed them before they moved
     into ``PlanPredictor.screen`` (the reference ``screen`` must match bit for bit)."""
 
-    def __init__(self, n: int, stall_periods: int, period_s: float, progress_nm: float) -> None:
+    def __init__(self, n: int, progress_periods: int, period_s: float, progress_nm: float,
+                 arrival_nm: float = 0.0) -> None:
         self.wind = np.zeros(2)
         self.predicted = None
         self.predicted_flying = None
@@ -660,7 +666,8 @@ class _PythonMemory:
         self.history: list = []
         self.homebound = [False] * n
         self.stalled = 0
-        self.stall_periods, self.period_s, self.progress = stall_periods, period_s, progress_nm
+        self.progress_periods, self.period_s, self.progress = progress_periods, period_s, progress_nm
+        self.arrival = arrival_nm
 
     def decide(self, state: np.ndarray, time_s: float) -> bool:
         """The old bookkeeping of one decision; returns whether an aircraft is handed over."""
@@ -687,10 +694,11 @@ class _PythonMemory:
         if self.history and abs(time_s - self.history[-1][0] - self.period_s) > 1e-6:
             self.history.clear()
         self.history.append((time_s, distances))
-        if len(self.history) > self.stall_periods:
+        if len(self.history) > self.progress_periods:
             then = self.history.pop(0)[1]
             for i, (now, before) in enumerate(zip(distances, then)):
-                if flying[i] and not self.homebound[i] and now > before - self.progress:
+                asked = min(self.progress, before - self.arrival)  # arrival asked within the ask of home
+                if flying[i] and not self.homebound[i] and now > before - asked:
                     self.homebound[i] = True
                     self.stalled += 1
         return any(bound and flying[i] for i, bound in enumerate(self.homebound))
@@ -700,11 +708,12 @@ class _PythonMemory:
 @given(
     n=st.integers(2, 5),
     seed=st.integers(0, 2**31 - 1),
-    stall_periods=st.integers(1, 4),
+    progress_periods=st.integers(1, 4),
     gaps=st.lists(st.sampled_from([300.0, 300.0, 300.0, 600.0, 450.0]), min_size=3, max_size=9),
+    asked=st.sampled_from([(0.0, 0.0), (30.0, 5.0), (60.0, 5.0)]),
 )
-def test_the_compiled_screen_keeps_the_wind_estimate_and_stall_rule_of_the_python_it_replaced(
-    n, seed, stall_periods, gaps
+def test_the_compiled_screen_keeps_the_wind_estimate_and_progress_rule_of_the_python_reference(
+    n, seed, progress_periods, gaps, asked
 ):
     """Random decision sequences (aircraft wandering, arriving, decisions off the period
     grid, predictions remembered or not): ``PlanPredictor.screen`` updates the wind estimate
@@ -712,9 +721,9 @@ def test_the_compiled_screen_keeps_the_wind_estimate_and_stall_rule_of_the_pytho
     from atc_nf_env.kernel import ARRIVED, S_STATUS, S_X, S_Y
     from atc_nf_env.shield_prediction import SCREEN_HOMED, SCREEN_NONE_FLYING, SCREEN_SAFE, DecisionMemory
 
-    predictor, _, state, proposal = _screen_setup(n_aircraft=n, stall_periods=stall_periods)
-    memory = DecisionMemory(n, stall_periods)
-    reference = _PythonMemory(n, stall_periods, 300.0, 0.0)
+    predictor, _, state, proposal = _screen_setup(n_aircraft=n, progress_periods=progress_periods)
+    memory = DecisionMemory(n, progress_periods)
+    reference = _PythonMemory(n, progress_periods, 300.0, *asked)
     rng = np.random.default_rng(seed)
     time_s = 0.0
     for gap in gaps:
@@ -730,7 +739,7 @@ def test_the_compiled_screen_keeps_the_wind_estimate_and_stall_rule_of_the_pytho
             reference.predicted, reference.predicted_flying = positions.tolist(), alive.tolist()
             reference.predicted_time = when
         handed = reference.decide(state, time_s)
-        verdict = predictor.screen(np.ascontiguousarray(state), proposal, time_s, 300.0, memory, 0.0)
+        verdict = predictor.screen(np.ascontiguousarray(state), proposal, time_s, 300.0, memory, *asked)
         assert np.array_equal(memory.wind_kt, reference.wind)
         assert memory.homebound.tolist() == reference.homebound and memory.counts[1] == reference.stalled
         assert (verdict == SCREEN_HOMED) == handed
