@@ -14,7 +14,7 @@ table of ``agents/README.md`` (``python -m agents.zoo --write``).
 ``--shield`` adds, for every model, a study of the model inside the safety filter
 (``atc_nf_env.shield.SafetyFilter``, ``atc-nf evaluate --shield``), labelled ``MODEL+shield``,
 with the filter's interventions (decisions changed, aircraft changed, MPC fallbacks,
-aircraft handed to the MPC by the stall rule) in
+aircraft taken over by the progress rule and flown home) in
 the table; the decision latency's mean and p99 are printed for every policy.
 
 ``--reuse-mpc DIR`` copies the MPC runs of the same seeds from an earlier study of the
@@ -145,7 +145,7 @@ def table(results: dict[str, Any]) -> str:
         "runs outside envelope | runs at airspeed cap | worst excursion (kt) | envelope held (% of steps) | "
         "mean flight time (min) | decision latency | MPC latency / agent's | decision p99 | "
         "shield: decisions changed / aircraft changed / settled by a sampled set / MPC fallbacks / "
-        "stalled aircraft handed to the MPC |",
+        "aircraft taken over by the progress rule |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for scenario, by_policy in results.items():

@@ -99,7 +99,7 @@ def _policy_line(info: dict[str, Any]) -> str | None:
         if info.get("shield_unresolved"):
             text += f", {info['shield_unresolved']} applied although predicted unsafe"
         if info.get("shield_stalled_aircraft"):
-            text += f", {info['shield_stalled_aircraft']} aircraft handed over by the stall rule"
+            text += f", {info['shield_stalled_aircraft']} aircraft taken over by the progress rule"
         parts.append(text)
     return "; ".join(parts) if parts else None
 

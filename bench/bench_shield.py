@@ -198,14 +198,14 @@ def main(argv: list[str] | None = None) -> int:
         "tier settles most of what the structured alternatives cannot before it comes to that. The last column: "
         "the share of the shielded decisions' time spent inside the compiled prediction "
         "(`PlanPredictor.screen`: the kernel flying the proposal, in one call with the filter's wind estimate "
-        "and stall rule; `PlanPredictor.first_safe`: the alternatives), over all decisions "
+        "and progress rule; `PlanPredictor.first_safe`: the alternatives), over all decisions "
         "and over those passed unchanged; the rest is the agent and the filter's Python (and an MPC decision "
         "where it falls back).",
         "",
         *rows,
         "",
         ("Where the shielded mean goes, per decision, in the same run: the agent (its time alone), the check of "
-         "its proposal (the two-period prediction, with the filter's wind estimate and stall rule), the "
+         "its proposal (the two-period prediction, with the filter's wind estimate and progress rule), the "
          "alternatives' flights, and the rest (the filter's Python; MPC decisions). The floors bound what faster "
          "alternatives could reach with this prediction on this machine: the agent and the check alone, and that "
          "plus one prediction of the applied waypoints for every decision changed (timed after the decision: an "
