@@ -104,7 +104,8 @@ class Budget:
                 f"({self.ppo_num_envs} worlds × {self.ppo_n_steps} steps per rollout); BC from "
                 f"{self.demo_episodes} MPC episodes (K = {self.expert_extractions}), {self.bc_epochs} epochs; DAgger "
                 f"{self.dagger_iterations} × {self.dagger_episodes} learner episodes after BC, {self.dagger_epochs} "
-                f"epochs each; IPPO/MAPPO {self.torchrl_frames:,} frames per seed; {self.test_runs} test-split runs "
+                f"epochs each; IPPO/MAPPO {self.torchrl_frames:,} frames per seed (frames: aircraft decisions); "
+                f"{self.test_runs} test-split runs "
                 f"per model")
 
 
@@ -267,7 +268,15 @@ def torchrl_trainer() -> tuple[Any, str | None]:
         return None, f"{TORCHRL_MODULE} is not importable here ({error})"
     if not callable(getattr(module, "train", None)):
         return None, f"{TORCHRL_MODULE} has no train(algorithm, task, seed, frames, out)"
+    if not _torchrl_installed():
+        return None, "torchrl is not installed in this environment (examples/requirements-torch.txt)"
     return module, None
+
+
+def _torchrl_installed() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("torchrl") is not None and importlib.util.find_spec("tensordict") is not None
 
 
 def _curve_csv(path: Path, x_key: str, y_key: str) -> dict[str, list[float]] | None:
@@ -361,15 +370,28 @@ def train_imitation(task: str, seed: int, budget: Budget, folder: Path) -> dict[
 
 
 def train_torchrl(algorithm: str, task: str, seed: int, budget: Budget, folder: Path) -> dict[str, Any]:
-    """IPPO or MAPPO with ``agents.marl_torchrl.train(algorithm, task, seed, frames, out)``."""
+    """IPPO or MAPPO with ``agents.marl_torchrl.train(algorithm, task, seed, frames, out)``.
+
+    That trainer counts a frame as one decision period of one world (N aircraft
+    decisions): it gets ``torchrl_frames / N`` of them, the same number of aircraft
+    decisions as PPO's ``ppo_frames`` when both budgets are equal."""
+    from atc_nf_env.benchmark import get_task
+    from atc_nf_env.scenarios import make_scenario
+
     module, why = torchrl_trainer()
     if module is None:
         raise RuntimeError(why)
+    n_aircraft = make_scenario(get_task(task).scenario, seed=0).n_aircraft
+    periods = -(-budget.torchrl_frames // n_aircraft)
     start = time.perf_counter()
-    model = Path(module.train(algorithm, task, seed, budget.torchrl_frames, folder / "run"))
+    trained = Path(module.train(algorithm, task, seed, periods, folder / "run"))
     wall = time.perf_counter() - start
+    # Every seed's file has the same name (policy.pt): a copy named by algorithm and seed.
+    model = folder / f"{algorithm}-s{seed}{trained.suffix}"
+    shutil.copyfile(trained, model)
     meta_path = folder / "run" / "meta.json"
     meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+    done_periods = int(meta.get("frames", periods))
     curve = None
     curve_path = folder / "run" / "curve.csv"
     if curve_path.exists():
@@ -380,11 +402,36 @@ def train_torchrl(algorithm: str, task: str, seed: int, budget: Budget, folder: 
         y_key = next((c for c in columns if "return" in c), None)
         if columns and y_key:
             curve = _curve_csv(curve_path, columns[0], y_key)
-    return {algorithm: {"model": str(model), "frames": int(meta.get("frames", budget.torchrl_frames)),
-                        "frames_unit": "frames", "wall_s": round(float(meta.get("wall_s", wall)), 1),
-                        "command": f"{TORCHRL_MODULE}.train({algorithm!r}, {task!r}, {seed}, "
-                                   f"{budget.torchrl_frames}, {str(folder / 'run')!r})",
-                        "curve": curve, "curve_axes": ["frames", "mean return (training)"]}}
+            if curve is not None and columns[0] == "frames":  # world periods -> aircraft decisions
+                curve["x"] = [x * n_aircraft for x in curve["x"]]
+    return {algorithm: {"model": str(model), "frames": done_periods * n_aircraft, "frames_unit": "frames",
+                        "wall_s": round(float(meta.get("wall_s", wall)), 1),
+                        "command": f"{TORCHRL_MODULE}.train({algorithm!r}, {task!r}, {seed}, {periods}, "
+                                   f"{str(folder / 'run')!r})",
+                        "curve": curve, "curve_axes": ["frames", "mean return per aircraft (training)"]}}
+
+
+def flyable(model: str) -> str:
+    """What ``score_card`` flies for a model file: the path of a ``.zip`` (SB3's loader),
+    or for another format (TorchRL's ``policy.pt``) a name registered in this process
+    (``atc_nf_env.policy.register_policy``; the studies run in this process) that carries
+    the file's hash, so that a retrained model never resumes another's runs."""
+    from atc_nf_env.evaluate import file_sha256
+    from atc_nf_env.policy import _file_suffixes, make_policy, register_policy
+
+    path = Path(model)
+    if path.suffix == ".zip":
+        return model
+    name = f"{path.stem}-{file_sha256(path)[:12]}"
+    if path.suffix.lstrip(".") in _file_suffixes():
+        register_policy(name, lambda: make_policy(model))
+    else:
+        module, why = torchrl_trainer()
+        loader = getattr(module, "TorchRLPolicy", None)
+        if loader is None:
+            raise ValueError(f"{model}: no installed loader for {path.suffix} files ({why or TORCHRL_MODULE + ' has no TorchRLPolicy'})")
+        register_policy(name, lambda: loader(model))
+    return name
 
 
 @dataclass(frozen=True)
@@ -648,10 +695,10 @@ def build_table(budget: Budget, out: Path, tasks: Sequence[str], algorithms: Seq
                 summaries.append(row_summary(Row(task, algorithm, [], "–", [], [], [],
                                                  note="not run: no model trained")))
                 continue
-            alone = [score(r["model"], Path(r["model"]).stem, task, False, budget, out, build, model_workers)
-                     for r in records]
-            shielded = [score(r["model"], Path(r["model"]).stem, task, True, budget, out, build, model_workers)
-                        for r in records]
+            alone = [score(flyable(r["model"]), Path(r["model"]).stem, task, False, budget, out, build,
+                           model_workers) for r in records]
+            shielded = [score(flyable(r["model"]), Path(r["model"]).stem, task, True, budget, out, build,
+                              model_workers) for r in records]
             summaries.append(row_summary(Row(task, algorithm, seeds, _budget_text(records[0]),
                                              [r["wall_s"] for r in records], alone, shielded)))
             curves[algorithm] = [r["curve"] for r in records if r.get("curve")]

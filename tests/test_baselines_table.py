@@ -180,3 +180,44 @@ def test_final_evaluation_prints_runs_safe_and_home_per_run(capsys: pytest.Captu
     assert per_run["runs_safe"] == 0
     assert (f"final evaluation on converging-4, seeds 0..1: 0/2 runs safe (with LoS {per_run['runs_with_los']}, "
             f"outside the envelope 2), {per_run['runs_home']}/2 runs home") in line
+
+
+def test_torchrl_rows_plug_in_through_agents_marl_torchrl(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A stand-in for agents.marl_torchrl (train -> policy.pt, curve.csv, meta.json; a
+    loader): its models are trained per seed, copied under their own names, flown through
+    an in-process registration and scored like the others. The stand-in's loader flies
+    the NF alone, so its cards must equal the NF's on the same seeds."""
+    import sys
+    import types
+
+    from baselines import NFDirect
+
+    asked: list[tuple[str, str, int, int]] = []
+
+    def train(algorithm: str, task: str, seed: int, frames: int, out: Path) -> Path:
+        asked.append((algorithm, task, seed, frames))
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "policy.pt").write_bytes(f"weights of {algorithm} seed {seed}".encode())
+        (out / "curve.csv").write_text(f"frames,wall_s,mean_return\n{frames // 2},1,{seed}\n{frames},2,{seed + 1}\n")
+        (out / "meta.json").write_text(json.dumps({"frames": frames, "wall_s": 1.5}))
+        return out / "policy.pt"
+
+    fake = types.ModuleType(bt.TORCHRL_MODULE)
+    fake.train = train  # type: ignore[attr-defined]
+    fake.TorchRLPolicy = lambda path: NFDirect()  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, bt.TORCHRL_MODULE, fake)
+    monkeypatch.setattr(bt, "_torchrl_installed", lambda: True)
+    out = tmp_path / "out"
+    argv = ["--quick", "--tasks", "converging-4", "--algorithms", "ippo", "--out", str(out)]
+    assert bt.main(argv) == 0
+    # 512 aircraft decisions on 4 aircraft: 128 world periods, TorchRL's frames.
+    assert asked == [("ippo", "converging-4", 0, 128), ("ippo", "converging-4", 1, 128)]
+    record = json.loads((out / "table.json").read_text())
+    row = next(r for r in record["rows"] if r["algorithm"] == "ippo")
+    nf = next(r for r in record["rows"] if r["algorithm"] == "nf")
+    assert row["seeds"] == [0, 1] and row["wall_s_per_seed"] == [1.5, 1.5] and row["budget"] == "512 frames"
+    for part in ("alone", "shielded"):
+        for key in ("runs_safe", "runs_home"):
+            assert row[part][key]["values"] == nf[part][key]["values"] * 2
+    assert (out / "train" / "converging-4" / "ippo" / "seed1" / "ippo-s1.pt").read_bytes() == b"weights of ippo seed 1"
+    assert (out / "figures" / "baselines_converging-4.png").is_file()
