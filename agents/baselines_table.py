@@ -630,6 +630,7 @@ def plot_curves(task: str, curves: dict[str, list[dict[str, Any]]], axes_labels:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import EngFormatter
 
     fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.3), constrained_layout=True, squeeze=False)
     for ax, (algorithm, seed_curves) in zip(axes[0], panels):
@@ -644,6 +645,8 @@ def plot_curves(task: str, curves: dict[str, list[dict[str, Any]]], axes_labels:
         ax.plot(x, means, lw=1.4, label=f"mean of {len(seed_curves)} seeds")
         ax.fill_between(x, lows, highs, alpha=0.25, label="95 % t interval over seeds")
         ax.set_title(f"{algorithm} on {task}")
+        if axes_labels[algorithm][0] == "frames":
+            ax.xaxis.set_major_formatter(EngFormatter())  # 300k, not 300000 run into its neighbours
         ax.set_xlabel(textwrap.fill(axes_labels[algorithm][0], 40))
         ax.set_ylabel(textwrap.fill(axes_labels[algorithm][1], 32))
         ax.grid(alpha=0.3)
