@@ -12,7 +12,7 @@ DEMO_BIN := $(DEMO_VENV)/bin
 # torch>=2.3, and a bare requirement would pull a multi-GB CUDA build.
 TORCH ?= torch==2.13.0
 
-.PHONY: demo test docs test-integrations bench reproduce clean
+.PHONY: demo test docs test-integrations bench reproduce clean baselines
 
 # A venv with the CPU torch installed first, then the given pip arguments:
 # $(call torch_venv,VENV_DIR,PIP_ARGUMENTS)
@@ -110,3 +110,9 @@ clean:
 	rm -rf $(VENV) $(DEMO_VENV) $(RLLIB_VENV) $(TORCH_VENV) $(BENCHMARL_VENV) $(AGILERL_VENV) out
 	find . -path ./.git -prune -o \( -name '*.nbi' -o -name '*.nbc' \) -type f -print | xargs rm -f
 	find . -path ./.git -prune -o -name __pycache__ -type d -print | xargs rm -rf
+
+# The benchmark's baseline table (docs/baselines.md): SB3 PPO, BC and DAgger (3 seeds each),
+# IPPO/MAPPO when agents.marl_torchrl is importable, the MPC and the NF alone, on the test
+# split of converging-4 and random-6, alone and in the safety filter. Resumable (out/baselines).
+baselines: $(BIN)/atc-nf
+	$(BIN)/python -m agents.baselines_table --write

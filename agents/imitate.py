@@ -563,18 +563,16 @@ def behaviour_cloning(model: Any, data: Dataset, *, epochs: int, batch_size: int
 
 
 def quick_check(path: Path, scenarios: list[str], runs: int) -> dict[str, Any]:
-    """The evaluator on validation seeds CHECK_SEED.. (neither training nor evaluation seeds)."""
-    from atc_nf_env.evaluate import Study, evaluate
+    """The evaluator on validation seeds CHECK_SEED.. (neither training nor evaluation
+    seeds), counted per run: runs safe, runs home (``agents.train.safety_report``)."""
+    from agents.train import safety_report
 
     out = {}
     for scenario in scenarios:
-        s = evaluate(Study(policy=str(path), scenario=scenario), runs, first_seed=CHECK_SEED, workers=1,
-                     progress=False)
+        s = safety_report(str(path), scenario, runs, WIND_SIGMA_MPS, first_seed=CHECK_SEED, label=f"  check {path.name}")
         out[scenario] = {"success_rate": s["success_rate"], "los_count": s["los_count"],
                          "envelope_violation_fraction": round(s["envelope_violation_fraction"], 5),
-                         "flight_time_min_mean": s["flight_time_min"]["mean"]}
-        print(f"  check {path.name} on {scenario} (seeds {CHECK_SEED}..{CHECK_SEED + runs - 1}): "
-              + json.dumps(out[scenario]))
+                         "flight_time_min_mean": s["flight_time_min"]["mean"], **s["per_run"]}
     return out
 
 

@@ -56,6 +56,10 @@ class Args:
     n_neighbours: int = arg(4, "K nearest neighbours in each observation")
     max_aircraft: int = arg(0, "centralized: aircraft slots (0: the scenario's number)")
     reward_weights: str = arg("", 'JSON of RewardWeights fields, e.g. \'{"envelope_violation": 10}\'')
+    envelope_margin_kt: float = arg(0.0, "experimental (--vec native, shared): penalize every aircraft whose airspeed "
+                                         "came within this margin of the envelope's edges during the period (0: off)")
+    envelope_margin_weight: float = arg(0.0, "weight of that penalty: weight × (margin − closest approach) / margin, "
+                                             "capped at 2 × weight (beyond the edge by a margin or more)")
     num_envs: int = arg(16, "worlds (copies of the environment) stepped together")
     total_timesteps: int = arg(200_000, "environment steps (SB3 counts one per sub-env per step)")
     seed: int = arg(0, "seeds torch, NumPy and the action noise")
@@ -84,7 +88,11 @@ class Args:
     out: Path = arg(Path("out/train"), "output folder (model.zip, checkpoints/, tb/, config.json)")
     checkpoint_every: int = arg(50_000, "save a checkpoint every this many timesteps (0: never)")
     max_wall_minutes: float = arg(0.0, "stop learning (and save the model) after this many minutes of wall time (0: never)")
-    eval_runs: int = arg(0, "after training, evaluate on seeds 0..N-1 with atc-nf evaluate's evaluator")
+    eval_runs: int = arg(0, "after training, evaluate on seeds 0..N-1 with atc-nf evaluate's evaluator "
+                            "(prints runs safe and runs home out of N)")
+    eval_every: int = arg(0, "every this many timesteps, fly --eval-every-runs runs on seeds 0..R-1 and print runs "
+                             "safe and runs home (rows of OUT/evaluations.csv; 0: never)")
+    eval_every_runs: int = arg(10, "runs of each periodic evaluation (--eval-every)")
     torch_threads: int = arg(2, "torch CPU threads")
     progress: bool = arg(True, "show a progress bar")
     verbose: int = arg(0, "SB3 verbosity")
@@ -125,8 +133,57 @@ def make_vec_env(args: Args) -> Any:
         venv = ss.concat_vec_envs_v1(ss.pettingzoo_env_to_vec_env_v1(parallel), args.num_envs, num_cpus=0,
                                      base_class="stable_baselines3")
         venv = seedable_sb3_vec_env(venv)  # PPO(seed=...) calls venv.seed(), which SuperSuit lacks
+    if args.envelope_margin_kt > 0 and args.envelope_margin_weight > 0:
+        venv = EnvelopeMarginPenalty(venv, args.envelope_margin_kt, args.envelope_margin_weight)
     # Parameter sharing: VecMonitor counts one episode per aircraft.
     return VecMonitor(venv)
+
+
+def EnvelopeMarginPenalty(venv: Any, margin_kt: float, weight: float) -> Any:  # noqa: N802 - a wrapper class's factory
+    """The native shared vector env with a shaping term on the airspeed envelope's margin:
+    an aircraft that flew during the period and whose extreme airspeeds came within
+    ``margin_kt`` of [366, 540] kt loses weight × (margin − m) / margin, capped at
+    2 × weight, where m = min(min airspeed − 366, 540 − max airspeed) over the period's
+    integration steps. The env's own reward (and its envelope penalty) is unchanged; this
+    is an experiment towards agents that stay in the envelope without the filter, not an
+    env default. The extreme airspeeds come from the kernel's trace of each step, which
+    the native vector env computes anyway (its ``worlds.step`` is wrapped to keep it)."""
+    import numpy as np
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    from atc_nf_env.units import AIRSPEED_MAX_KT, AIRSPEED_MIN_KT
+
+    class _Penalty(VecEnvWrapper):
+        def __init__(self) -> None:
+            super().__init__(venv)
+            worlds = getattr(venv, "worlds", None)
+            if worlds is None or getattr(venv, "mode", None) != "shared":
+                raise ValueError("--envelope-margin-kt needs --mode shared --vec native (the package's vector env)")
+            self.penalty: np.ndarray | None = None
+            step = worlds.step
+
+            def step_and_keep(actions: Any, active: Any = None) -> Any:
+                outcome, trace = step(actions, active)
+                closest = np.minimum(trace.min_airspeed_kt - AIRSPEED_MIN_KT, AIRSPEED_MAX_KT - trace.max_airspeed_kt)
+                deficit = np.clip((margin_kt - closest) / margin_kt, 0.0, 2.0)
+                self.penalty = np.where(outcome.flew, weight * deficit, 0.0).reshape(-1)
+                return outcome, trace
+
+            worlds.step = step_and_keep
+
+        def reset(self) -> Any:
+            return self.venv.reset()
+
+        def step_wait(self) -> Any:
+            obs, rewards, dones, infos = self.venv.step_wait()
+            if self.penalty is None or self.penalty.shape != rewards.shape:
+                raise RuntimeError(f"envelope margin penalty: {None if self.penalty is None else self.penalty.shape} "
+                                   f"per-aircraft terms for {rewards.shape} rewards (one per aircraft slot expected)")
+            rewards = rewards - self.penalty.astype(rewards.dtype)
+            self.penalty = None
+            return obs, rewards, dones, infos
+
+    return _Penalty()
 
 
 def check_args(args: Args) -> None:
@@ -144,6 +201,12 @@ def check_args(args: Args) -> None:
         raise ValueError(f"--init-from {args.init_from}: no such file")
     if args.total_timesteps < 1 or args.num_envs < 1:
         raise ValueError("--total-timesteps and --num-envs must be >= 1")
+    if args.eval_every < 0 or args.eval_every_runs < 1 or args.eval_runs < 0:
+        raise ValueError("--eval-every and --eval-runs must be >= 0, --eval-every-runs >= 1")
+    if not (args.envelope_margin_kt >= 0 and args.envelope_margin_weight >= 0):
+        raise ValueError("--envelope-margin-kt and --envelope-margin-weight must be >= 0")
+    if args.envelope_margin_kt > 0 and args.envelope_margin_weight > 0 and (args.mode, args.vec) != ("shared", "native"):
+        raise ValueError("--envelope-margin-kt needs --mode shared --vec native (the package's vector env)")
     if not args.max_wall_minutes >= 0:
         raise ValueError(f"--max-wall-minutes {args.max_wall_minutes}: must be >= 0 (0: no limit)")
 
@@ -223,6 +286,7 @@ def save_model(model: Any, path: Path, meta: dict[str, Any]) -> Path:
 # ------------------------------------------------------------------ 3. callbacks
 
 CURVE_HEADER = "timesteps,wall_s,episodes,mean_return,mean_length,success_rate"
+EVALUATIONS_HEADER = "timesteps,runs,runs_safe,runs_home,runs_with_los,runs_outside_envelope"
 
 
 def _mean(values: list[Any]) -> float | None:
@@ -292,7 +356,33 @@ def make_callbacks(args: Args, meta: dict[str, Any]) -> list[Any]:
         def _on_step(self) -> bool:
             return not self.stop
 
+    class PeriodicEvaluation(BaseCallback):
+        """Every ``eval_every`` timesteps: save the model, fly it on seeds 0..R-1 and append
+        per-run safety to ``OUT/evaluations.csv`` (timesteps, runs, runs safe, runs home,
+        runs with LoS, runs outside the envelope)."""
+
+        def _on_training_start(self) -> None:
+            self.next_eval = args.eval_every
+            self.path = args.out / "evaluations.csv"
+            self.path.write_text(EVALUATIONS_HEADER + "\n")
+
+        def _on_step(self) -> bool:
+            if self.model.num_timesteps >= self.next_eval:
+                model_path = save_model(self.model, args.out / "eval_model.zip", meta)
+                report = safety_report(str(model_path), args.scenario, args.eval_every_runs, args.wind_sigma,
+                                       label=f"evaluation at {self.model.num_timesteps} timesteps")["per_run"]
+                with self.path.open("a") as file:
+                    file.write(",".join(str(v) for v in (self.model.num_timesteps, report["runs"], report["runs_safe"],
+                                                         report["runs_home"], report["runs_with_los"],
+                                                         report["runs_outside_envelope"])) + "\n")
+                for key in ("runs_safe", "runs_home"):
+                    self.logger.record(f"eval/{key}", report[key])
+                self.next_eval += args.eval_every
+            return True
+
     callbacks = [progress_callback(args.total_timesteps, args.progress), Checkpoints(), LearningCurve()]
+    if args.eval_every:
+        callbacks.append(PeriodicEvaluation())
     if args.value_warmup_updates and args.algo == "ppo":
         callbacks.append(ValueWarmup())
     return callbacks
@@ -337,12 +427,38 @@ def train(args: Args, command: str | None = None) -> dict[str, Any]:
     return record
 
 
-def evaluate_model(path: Path, scenario: str, runs: int, wind_sigma: float) -> dict[str, Any]:
-    """The evaluator's summary of the model on the held-out seeds 0..runs-1."""
+def safety_report(policy: str, scenario: str, runs: int, wind_sigma: float, first_seed: int = 0,
+                  label: str = "evaluation") -> dict[str, Any]:
+    """Fly ``policy`` on seeds first_seed..first_seed+runs-1 and count per run: runs safe
+    (no loss of separation and no integration step outside the envelope,
+    ``atc_nf_env.benchmark.run_is_safe``), runs home (every aircraft arrived), runs with a
+    loss of separation, runs outside the envelope; prints one line and returns the
+    evaluator's summary with those counts added (``per_run``)."""
+    from atc_nf_env.benchmark import run_is_safe
     from atc_nf_env.evaluate import Study, evaluate
 
-    summary = evaluate(Study(policy=str(path), scenario=scenario, wind_sigma_mps=wind_sigma), runs, workers=1,
-                       progress=False)
+    records: list[dict[str, Any]] = []
+    summary = evaluate(Study(policy=policy, scenario=scenario, wind_sigma_mps=wind_sigma), runs,
+                       first_seed=first_seed, workers=1, progress=False, on_run=records.append)
+    per_run = {
+        "runs": len(records),
+        "runs_safe": sum(run_is_safe(r) for r in records),
+        "runs_home": sum(bool(r["success"]) for r in records),
+        "runs_with_los": sum(int(r["los_count"]) > 0 for r in records),
+        "runs_outside_envelope": sum(float(r["envelope_violation_fraction"]) > 0 for r in records),
+        "seeds": [first_seed, first_seed + runs - 1],
+    }
+    print(f"{label} on {scenario}, seeds {first_seed}..{first_seed + runs - 1}: "
+          f"{per_run['runs_safe']}/{per_run['runs']} runs safe (with LoS {per_run['runs_with_los']}, outside the "
+          f"envelope {per_run['runs_outside_envelope']}), {per_run['runs_home']}/{per_run['runs']} runs home",
+          flush=True)
+    return {**summary, "per_run": per_run}
+
+
+def evaluate_model(path: Path, scenario: str, runs: int, wind_sigma: float) -> dict[str, Any]:
+    """The evaluator's summary of the model on the held-out seeds 0..runs-1, with the
+    per-run safety counts (``safety_report``)."""
+    summary = safety_report(str(path), scenario, runs, wind_sigma, label="final evaluation")
     keys = ("runs", "success_rate", "los_count", "envelope_violation_fraction", "flight_time_min", "decision_s")
     print(json.dumps({k: summary.get(k) for k in keys}))
     return summary

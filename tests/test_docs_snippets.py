@@ -72,6 +72,9 @@ SKIPPED: dict[str, str] = {
                                     "`atc-nf reproduce` end to end with one run per study",
     "bash bench/regenerate.sh studies": "flies every published study again (tens of minutes) and rewrites "
                                         "committed tables",
+    "python -m agents.baselines_table --write": "trains and scores every baseline (about half an hour) and "
+                                                "rewrites docs/baselines.md; tests/test_baselines_table.py runs it "
+                                                "on the quick budget into a temporary folder",
     "python -m agents.cards --summaries agents/results/summary.json,agents/results/deepsets_summary.json,"
     "agents/results/scratch_ppo_summary.json": "rewrites the committed model cards; tests/test_agents.py runs "
                                                "agents.cards into a temporary folder",
