@@ -47,7 +47,7 @@ import sys
 # wait policy the idle kernel threads spin on the two cores that torch's updates need, and
 # training runs ~3x slower. Effective only when this module loads before torch and numba's
 # OpenMP layer (``python -m agents.marl_torchrl`` does; import this module first otherwise).
-_OMP_PASSIVE_BEFORE_TORCH = "torch" not in sys.modules
+_OMP_PASSIVE = "torch" not in sys.modules or os.environ.get("OMP_WAIT_POLICY", "").upper() == "PASSIVE"
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import argparse
@@ -274,7 +274,7 @@ def train(algorithm: str, task: str, seed: int, frames: int, out: Path, config: 
     """
     _check_args(algorithm, task, seed, frames)
     config = config or PPOConfig()
-    if not _OMP_PASSIVE_BEFORE_TORCH and os.environ.get("OMP_WAIT_POLICY", "").upper() != "PASSIVE":
+    if not _OMP_PASSIVE:
         warnings.warn("torch was imported before agents.marl_torchrl without OMP_WAIT_POLICY=PASSIVE: the kernel's "
                       "idle OpenMP threads may spin and slow training ~3x; set OMP_WAIT_POLICY=PASSIVE in the "
                       "environment or import agents.marl_torchrl first", RuntimeWarning, stacklevel=2)
