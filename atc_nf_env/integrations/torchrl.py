@@ -1,13 +1,22 @@
-"""TorchRL: the PettingZoo env in ``PettingZooWrapper`` with the settings it needs.
+"""TorchRL: a batched env over the native vector env, and TorchRL's PettingZoo wrapper
+with the settings it needs.
 
-    from atc_nf_env.integrations.torchrl import make_torchrl_env
-    env = make_torchrl_env(scenario="converging-4")
+    from atc_nf_env.integrations.torchrl import AtcNfBatchedEnv, make_torchrl_env
+    env = AtcNfBatchedEnv(32, seed=0, scenario="converging-4")   # 32 worlds, one kernel call a step
+    rollout = env.rollout(40, break_when_any_done=False)        # group "aircraft", global "state"
+
+    env = make_torchrl_env(scenario="converging-4")             # PettingZooWrapper, one world
     rollout = env.rollout(40)          # group "aircraft": observation, mask, info, ...
 
-Aircraft leave the episode when they arrive, so TorchRL needs ``use_mask=True`` (the
-group's ``mask`` says which are still flying), and ``done_on_any=False`` (its default
-for parallel envs resets the whole encounter as soon as the first aircraft arrives).
+``AtcNfBatchedEnv`` (a ``torchrl.envs.EnvBase``, TorchRL 0.14's conventions) steps B
+worlds of ``atc_nf_env.envs.vector.BatchWorlds`` together, 45-90 times the frames per
+second of ``PettingZooWrapper`` on two cores (``bench/bench_torchrl_env.py``); see its
+docstring for the keys. With ``PettingZooWrapper``, aircraft leave the episode when they
+arrive, so TorchRL needs ``use_mask=True`` (the group's ``mask`` says which are still
+flying), and ``done_on_any=False`` (its default for parallel envs resets the whole
+encounter as soon as the first aircraft arrives).
 The centralized env needs nothing: ``torchrl.envs.GymEnv("atc_nf_env/Encounter-v0")``.
+torchrl is imported on use.
 """
 
 from __future__ import annotations
