@@ -9,9 +9,9 @@
 Training (needs torchrl and tensordict, ``examples/requirements-torch.txt``):
 
 - the env is ``atc_nf_env.integrations.torchrl.AtcNfBatchedEnv``: ``num_envs`` worlds of the
-  task's scenario under its wind, stepped in one kernel call; episodes start from the
-  train split's seeds (world b's first episode has seed ``seed * 10_000 + b`` of the
-  split; later ones are drawn from that world's generator, all inside the train split);
+  task's scenario under its wind, stepped in one kernel call; every episode has a seed
+  of the train split: training seed s takes the consecutive seeds from
+  ``s * 1_000_000`` on, one per episode in the order the worlds reset;
 - one policy shared by every aircraft (``MultiAgentMLP(share_params=True,
   centralized=False)``): ego observation -> the loc and scale of a TanhNormal over the
   2-D action; the deterministic action is tanh(loc);
@@ -78,8 +78,8 @@ ALGORITHMS = ("ippo", "mappo")
 #: The ``format`` field of a saved policy file.
 POLICY_FORMAT = "atc-nf-torchrl-policy/1"
 GROUP = "aircraft"
-#: Each training seed owns this many consecutive train-split seeds for its worlds' first episodes.
-SEEDS_PER_RUN = 10_000
+#: Each training seed owns this many consecutive train-split seeds, one per episode.
+SEEDS_PER_RUN = 1_000_000
 
 
 @dataclass
@@ -294,7 +294,7 @@ def train(algorithm: str, task: str, seed: int, frames: int, out: Path, config: 
     task_ = get_task(task)
     env_kwargs = {"scenario": task_.scenario, "wind_sigma": task_.wind_sigma_mps}
     first_seed = SPLITS["train"].first + seed * SEEDS_PER_RUN
-    base = AtcNfBatchedEnv(config.num_envs, seed=first_seed, **env_kwargs)
+    base = AtcNfBatchedEnv(config.num_envs, episode_seeds=iter(range(first_seed, first_seed + SEEDS_PER_RUN)), **env_kwargs)
     env = TransformedEnv(base, RewardSum(in_keys=[(GROUP, "reward")], out_keys=[(GROUP, "episode_reward")]))
     m = base.n_slots
     actor, critic = _networks(algorithm, m, base.observation_dim, base.state_dim, config.hidden,
@@ -401,8 +401,8 @@ def train(algorithm: str, task: str, seed: int, frames: int, out: Path, config: 
         "frames": frames_done,
         "frame": "one decision period (5 min) of one world; aircraft decisions = frames x aircraft",
         "aircraft_slots": m,
-        "train_seeds": f"train split, worlds' first episodes {first_seed}..{first_seed + config.num_envs - 1}, "
-                       "later episodes drawn from each world's generator",
+        "train_seeds": f"train split, one per episode from {first_seed} on "
+                       f"({first_seed}..{first_seed + base.episodes_started - 1})",
         "eval_seeds": f"validation split {eval_seeds[0]}..{eval_seeds[-1]}",
         "wall_s": round(wall_s, 2),
         "frames_per_s": round(frames_done / wall_s, 1),

@@ -78,6 +78,20 @@ def test_world_b_flies_as_the_parallel_env_reset_with_seed_plus_b() -> None:
         assert np.array_equal(expected, nxt[GROUP, "reward"][b, :, 0].numpy())
 
 
+def test_episode_seeds_iterator_gives_each_reset_the_next_seeds() -> None:
+    env = AtcNfBatchedEnv(3, episode_seeds=iter(range(500, 510)), scenario="random-4", max_cycles=2)
+    assert env.reset()["episode_seed"].tolist() == [500, 501, 502]
+    partial = env.reset().clone()  # resets all three: 503..505
+    assert partial["episode_seed"].tolist() == [503, 504, 505]
+    partial.set("_reset", torch.tensor([[False], [True], [False]]))
+    assert env.reset(partial)["episode_seed"].tolist() == [503, 506, 505]
+    assert env.episodes_started == 7
+    with pytest.raises(ValueError, match="seed or episode_seeds"):
+        AtcNfBatchedEnv(2, seed=0, episode_seeds=iter(range(3)))
+    with pytest.raises(ValueError, match="iterator"):
+        AtcNfBatchedEnv(2, episode_seeds=[1, 2])
+
+
 def test_partial_reset_restarts_only_the_worlds_that_ended() -> None:
     env = AtcNfBatchedEnv(4, seed=0, scenario="converging-4", max_cycles=3)
     td = env.reset()

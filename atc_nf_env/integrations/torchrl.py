@@ -111,13 +111,23 @@ def _batched_env_class() -> type:
                 vector env does); later resets of a world draw their seeds from that
                 world's generator, so one seed fixes every episode. ``set_seed`` does the
                 same for the next reset.
+            episode_seeds: instead of ``seed``, an iterator of episode seeds: every reset
+                takes the next one for each world it resets, in world order (e.g.
+                ``itertools.count(first)`` keeps every episode inside a seed range, such
+                as a benchmark split's).
             device: torch device of the tensors (the kernel runs on the CPU).
             **kwargs: the environments' keyword arguments (``atc_nf_env.envs``:
                 ``scenario``, ``wind_sigma``, ``max_aircraft``, ``n_neighbours``, ...);
                 ``render_mode`` must be None.
         """
 
-        def __init__(self, num_envs: int = 8, *, seed: int | None = None, device: Any = "cpu", **kwargs: Any) -> None:
+        def __init__(self, num_envs: int = 8, *, seed: int | None = None, episode_seeds: Any = None,
+                     device: Any = "cpu", **kwargs: Any) -> None:
+            if seed is not None and episode_seeds is not None:
+                raise ValueError("AtcNfBatchedEnv: give seed or episode_seeds, not both")
+            if episode_seeds is not None and not hasattr(episode_seeds, "__next__"):
+                raise ValueError(f"AtcNfBatchedEnv: episode_seeds = {episode_seeds!r}: must be an iterator of ints "
+                                 "(e.g. itertools.count(first) or iter(list_of_seeds))")
             cfg = EnvConfig.from_kwargs(kwargs, "AtcNfBatchedEnv")
             if cfg.render_mode is not None:
                 raise ValueError(f"AtcNfBatchedEnv: render_mode = {cfg.render_mode!r}: allowed: None")
@@ -128,6 +138,9 @@ def _batched_env_class() -> type:
             self.num_envs = worlds.num_envs
             self.n_slots = worlds.n_slots
             self._pending_seed: int | None = None
+            self._episode_seeds = episode_seeds
+            #: Episodes begun so far (world resets), over all worlds.
+            self.episodes_started = 0
             b, m = self.num_envs, self.n_slots
             obs_space = worlds.obs_spec.space()
             state_space = worlds.obs_spec.state_space(m)
@@ -213,12 +226,17 @@ def _batched_env_class() -> type:
             else:
                 worlds_to_reset = np.flatnonzero(reset.reshape(b).cpu().numpy())
             seed, self._pending_seed = self._pending_seed, None
+            seeds: list[int | None] | None = None
             if seed is not None:
-                seeds: list[int | None] | None = [seed + int(k) for k in worlds_to_reset]
-            else:
-                seeds = None
+                seeds = [seed + int(k) for k in worlds_to_reset]
+            elif self._episode_seeds is not None:
+                try:
+                    seeds = [int(next(self._episode_seeds)) for _ in worlds_to_reset]
+                except StopIteration:
+                    raise ValueError("AtcNfBatchedEnv: episode_seeds ran out of seeds") from None
             if len(worlds_to_reset):
                 self.worlds.reset_worlds(worlds_to_reset, seeds)
+                self.episodes_started += len(worlds_to_reset)
             parts = self._observation()
             flags = self._ended()
             return self._pack(parts, {key: torch.from_numpy(value) for key, value in flags.items()})
@@ -230,6 +248,7 @@ def _batched_env_class() -> type:
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seeds: got {len(seeds)}; expected one per world ({self.num_envs})")
             self.worlds.reset_worlds(np.arange(self.num_envs), seeds)
+            self.episodes_started += self.num_envs
             self._pending_seed = None
             parts = self._observation()
             return self._pack(parts, {key: torch.from_numpy(value) for key, value in self._ended().items()})
