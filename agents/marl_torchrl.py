@@ -143,7 +143,8 @@ def _check_args(algorithm: str, task: str, seed: int, frames: int) -> None:
         raise ValueError(f"frames = {frames!r}: must be an integer >= 1 (decision periods summed over worlds)")
 
 
-def _networks(algorithm: str, n_slots: int, obs_dim: int, state_dim: int, hidden: int, action_spec: Any) -> tuple[Any, Any]:
+def _networks(algorithm: str, n_slots: int, obs_dim: int, state_dim: int, hidden: int,
+              action_spec: Any) -> tuple[Any, Any]:
     """(actor, critic) TensorDict modules over the group ``aircraft``."""
     import torch
     from tensordict.nn import NormalParamExtractor, TensorDictModule
@@ -294,7 +295,8 @@ def train(algorithm: str, task: str, seed: int, frames: int, out: Path, config: 
     task_ = get_task(task)
     env_kwargs = {"scenario": task_.scenario, "wind_sigma": task_.wind_sigma_mps}
     first_seed = SPLITS["train"].first + seed * SEEDS_PER_RUN
-    base = AtcNfBatchedEnv(config.num_envs, episode_seeds=iter(range(first_seed, first_seed + SEEDS_PER_RUN)), **env_kwargs)
+    train_seeds = iter(range(first_seed, first_seed + SEEDS_PER_RUN))
+    base = AtcNfBatchedEnv(config.num_envs, episode_seeds=train_seeds, **env_kwargs)
     env = TransformedEnv(base, RewardSum(in_keys=[(GROUP, "reward")], out_keys=[(GROUP, "episode_reward")]))
     m = base.n_slots
     actor, critic = _networks(algorithm, m, base.observation_dim, base.state_dim, config.hidden,
@@ -468,7 +470,8 @@ class TorchRLPolicy:
         env = saved["env"]
         self.mapping = ActionMapping.coerce(env["action_mapping"])
         self.n_neighbours = int(env["n_neighbours"])
-        self.time_limit_s = EnvConfig(max_episode_minutes=float(env["max_episode_minutes"])).max_decisions * DECISION_PERIOD_S
+        limit = EnvConfig(max_episode_minutes=float(env["max_episode_minutes"]))
+        self.time_limit_s = limit.max_decisions * DECISION_PERIOD_S
         layers = [(layer["weight"].numpy().T.copy(), layer["bias"].numpy().copy(), _ACTIVATIONS[layer["activation"]])
                   for layer in saved["layers"]]
         self.obs_dim = int(layers[0][0].shape[0])
