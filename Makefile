@@ -78,7 +78,7 @@ $(AGILERL_VENV)/.installed: pyproject.toml examples/requirements-agilerl.txt
 	touch $@
 
 test-integrations: $(RLLIB_VENV)/.installed $(TORCH_VENV)/.installed $(BENCHMARL_VENV)/.installed $(AGILERL_VENV)/.installed
-	timeout $(INTEGRATIONS_TIMEOUT_S) $(TORCH_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_torch_libraries.py
+	timeout $(INTEGRATIONS_TIMEOUT_S) $(TORCH_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_torch_libraries.py integration_tests/test_torchrl_marl.py
 	ATC_NF_SNIPPETS_OF=torchrl timeout $(INTEGRATIONS_TIMEOUT_S) $(TORCH_VENV)/bin/python -m pytest -q -p no:cacheprovider \
 		tests/test_docs_snippets.py -k 'python_block_runs or library_venv'
 	timeout $(INTEGRATIONS_TIMEOUT_S) $(BENCHMARL_VENV)/bin/python -m pytest -q -p no:cacheprovider integration_tests/test_benchmarl.py

@@ -1,6 +1,7 @@
 """TorchRL 0.14 and SuperSuit + Stable-Baselines3 (one venv): rollouts of the PettingZoo
-env, the centralized env and the vector env, a MAPPO loop with a collector, and PPO on
-SuperSuit's multi-process vector env with seed=0."""
+env, the centralized env and the vector env, the MAPPO example (``examples/train_torchrl.py``),
+and PPO on SuperSuit's multi-process vector env with seed=0. The batched TorchRL env and
+the IPPO/MAPPO trainers have their own file, ``test_torchrl_marl.py``."""
 
 from __future__ import annotations
 
@@ -44,9 +45,12 @@ def test_centralized_env_through_gym_env_and_the_vector_env_through_gym_wrapper(
     assert np.isfinite(rollout["next", "reward"].numpy()).all()
 
 
-def test_mappo_with_a_collector_trains(run_example) -> None:
-    out = run_example("train_torchrl.py", "--iterations", "3")
-    assert "iteration 3: frames 120" in out
+def test_mappo_example_trains_and_scores(run_example, tmp_path) -> None:
+    out = run_example("train_torchrl.py", "--algorithm", "mappo", "--frames", "128", "--num-envs", "4",
+                      "--steps-per-batch", "16", "--eval-runs", "2", "--test-runs", "1", "--out", str(tmp_path))
+    assert "trained" in out and ": 128 frames in" in out
+    assert "runs 1   home" in out
+    assert (tmp_path / "policy.pt").is_file()
 
 
 def test_supersuit_multiprocess_ppo_with_seed_0(run_example) -> None:

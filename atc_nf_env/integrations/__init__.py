@@ -6,7 +6,9 @@ yourself (the versions tested are in ``examples/requirements-*.txt``).
   AEC and centralized forms), so that ``PPOConfig().environment("atc_nf_env_parallel",
   env_config={...})`` works on every env runner of a Ray cluster; the centralized form
   (``"atc_nf_env_encounter"``) has a flat action vector for single-agent algorithms.
-- ``atc_nf_env.integrations.torchrl``: ``make_torchrl_env``, TorchRL's
+- ``atc_nf_env.integrations.torchrl``: ``AtcNfBatchedEnv``, B worlds of the native
+  vector env as one TorchRL env (one kernel call a step; IPPO/MAPPO in
+  ``agents.marl_torchrl`` train on it), and ``make_torchrl_env``, TorchRL's
   ``PettingZooWrapper`` with the two settings this env needs (``use_mask=True``: agents
   leave on arrival; ``done_on_any=False``: the episode goes on until the last has).
 - ``atc_nf_env.integrations.benchmarl``: ``AtcNfTask``, a BenchMARL task.
