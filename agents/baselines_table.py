@@ -418,13 +418,13 @@ def flyable(model: str) -> str:
     (``atc_nf_env.policy.register_policy``; the studies run in this process) that carries
     the file's hash, so that a retrained model never resumes another's runs."""
     from atc_nf_env.evaluate import file_sha256
-    from atc_nf_env.policy import _file_suffixes, make_policy, register_policy
+    from atc_nf_env.policy import make_policy, policy_file_suffixes, register_policy
 
     path = Path(model)
     if path.suffix == ".zip":
         return model
     name = f"{path.stem}-{file_sha256(path)[:12]}"
-    if path.suffix.lstrip(".") in _file_suffixes():
+    if path.suffix.lstrip(".") in policy_file_suffixes():
         register_policy(name, lambda: make_policy(model))
     else:
         module, why = torchrl_trainer()

@@ -520,7 +520,7 @@ def score(policy_path: str | Path, task: str, split: str = "test", runs: int = 5
     from atc_nf_env.benchmark import score_card
 
     spec = str(policy_path)
-    if "pt" not in policy_registry._file_suffixes():
+    if "pt" not in policy_registry.policy_file_suffixes():
         policy_registry.register_policy(spec, lambda: TorchRLPolicy(spec))
     return score_card(spec, task, split, runs, shield=shield, reference=reference, workers=1)
 

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from atc_nf_env.episode import MAX_EPISODE_S
+from atc_nf_env.policy import policy_file_suffixes
 from atc_nf_env.units import AIRSPEED_MAX_KT, AIRSPEED_MIN_KT, WIND_SIGMA_MPS
 
 #: The suite's version: cards of different versions are not comparable.
@@ -232,7 +233,10 @@ def score_card(policy: str, task: str, split: str, runs: int, *, shield: bool = 
         folder.mkdir(parents=True, exist_ok=True)
         return folder / f"{label}.jsonl"
 
-    label = (Path(policy).stem if policy.endswith(".zip") else policy) + ("+shield" if shield else "")
+    # A policy file is labelled by its name; its results file's header holds the file's hash, so
+    # two different files of one name are refused, never mixed.
+    is_file = Path(policy).suffix.lstrip(".") in {"zip", *policy_file_suffixes()}
+    label = (Path(policy).stem if is_file else policy) + ("+shield" if shield else "")
     records = _study_records(policy, task_, split_, runs, shield, path_of(label), workers, progress, policy_kwargs)
     ref = None
     if reference:

@@ -58,7 +58,7 @@ def register_policy(name: str, factory: Callable[..., Policy]) -> None:
     Installed packages declare their policies in the ``atc_nf_env.policies`` entry-point
     group instead, which also reaches the evaluator's worker processes.
     """
-    if not isinstance(name, str) or not name or name.lower().endswith(tuple(f".{s}" for s in _file_suffixes())):
+    if not isinstance(name, str) or not name or name.lower().endswith(tuple(f".{s}" for s in policy_file_suffixes())):
         raise ValueError(f"policy name {name!r}: must be a non-empty string that is not a file name")
     if not callable(factory):
         raise TypeError(f"factory for policy {name!r} must be callable, got {type(factory).__name__}")
@@ -71,7 +71,8 @@ def _entry_points(group: str) -> dict[str, Any]:
     return {ep.name: ep for ep in entry_points(group=group)}
 
 
-def _file_suffixes() -> list[str]:
+def policy_file_suffixes() -> list[str]:
+    """The suffixes of the policy files that plug-ins register (``zip``, ``pt``, ...), without the dot."""
     return sorted(_entry_points(POLICY_FILE_GROUP))
 
 
