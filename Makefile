@@ -65,7 +65,7 @@ $(RLLIB_VENV)/.installed: pyproject.toml examples/requirements-rllib.txt
 	touch $@
 
 $(TORCH_VENV)/.installed: pyproject.toml examples/requirements-torch.txt
-	$(call torch_venv,$(TORCH_VENV),-e . -r examples/requirements-torch.txt)
+	$(call torch_venv,$(TORCH_VENV),-e ".[rl]" -r examples/requirements-torch.txt)
 	touch $@
 
 $(BENCHMARL_VENV)/.installed: pyproject.toml examples/requirements-benchmarl.txt
@@ -114,5 +114,6 @@ clean:
 # The benchmark's baseline table (docs/baselines.md): SB3 PPO, BC and DAgger (3 seeds each),
 # IPPO/MAPPO when agents.marl_torchrl is importable, the MPC and the NF alone, on the test
 # split of converging-4 and random-6, alone and in the safety filter. Resumable (out/baselines).
-baselines: $(BIN)/atc-nf
-	$(BIN)/python -m agents.baselines_table --write
+# In TorchRL's venv, with the rl extra: every row, IPPO/MAPPO included.
+baselines: $(TORCH_VENV)/.installed
+	$(TORCH_VENV)/bin/python -m agents.baselines_table --write

@@ -636,14 +636,18 @@ def plot_curves(task: str, curves: dict[str, list[dict[str, Any]]], axes_labels:
     for ax, (algorithm, seed_curves) in zip(axes[0], panels):
         length = min(len(c["x"]) for c in seed_curves)
         x = seed_curves[0]["x"][:length]
-        means, lows, highs = [], [], []
+        means, lows, highs, xs = [], [], [], []
         for i in range(length):
-            mean, low, high = t_interval([c["y"][i] for c in seed_curves])
+            ys = [c["y"][i] for c in seed_curves]
+            if not all(math.isfinite(y) for y in ys):
+                continue  # a point some seed has no value at (TorchRL's return before its first episode ends)
+            mean, low, high = t_interval(ys)
+            xs.append(x[i])
             means.append(mean)
             lows.append(mean if low is None else low)
             highs.append(mean if high is None else high)
-        ax.plot(x, means, lw=1.4, label=f"mean of {len(seed_curves)} seeds")
-        ax.fill_between(x, lows, highs, alpha=0.25, label="95 % t interval over seeds")
+        ax.plot(xs, means, lw=1.4, label=f"mean of {len(seed_curves)} seeds")
+        ax.fill_between(xs, lows, highs, alpha=0.25, label="95 % t interval over seeds")
         ax.set_title(f"{algorithm} on {task}")
         if axes_labels[algorithm][0] == "frames":
             ax.xaxis.set_major_formatter(EngFormatter())  # 300k, not 300000 run into its neighbours
