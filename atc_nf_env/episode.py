@@ -168,7 +168,8 @@ def run_episode(
     period_steps = whole_steps("period_s", period_s, config.dt_s)
     limit_steps = whole_steps("max_time_s", max_time_s, config.dt_s)
     wind = episode_wind_kt(seed, wind_sigma_mps) if wind_kt is None else wind_kt  # Simulation checks it
-    if isinstance(scenario, StreamScenario):
+    stream = isinstance(scenario, StreamScenario)
+    if stream:
         # A stream ends at its length (flights still airborne then are counted as such).
         limit_steps = min(limit_steps, whole_steps("the stream's duration_s", scenario.duration_s, config.dt_s))
     sim = make_simulation(scenario, config=config, wind_kt=wind, record_every=record_every)
@@ -184,8 +185,15 @@ def run_episode(
     steps_done = 0  # counted in whole steps: a float clock could stall short of the limit
     start = time.perf_counter()
     while not sim.done and steps_done < limit_steps:
+        view = sim.view()
+        if stream and not view.flying.any():
+            # An empty sector: nothing to decide until the next flight enters.
+            steps = min(period_steps, limit_steps - steps_done)
+            sim.advance(view.waypoints, steps * config.dt_s)
+            steps_done += steps
+            continue
         t0 = time.perf_counter()
-        action = policy.act(sim.view())
+        action = policy.act(view)
         if np.iscomplexobj(action):
             raise ValueError(f"{type(policy).__name__}.act returned complex waypoints; expected real (N, 2) nm")
         action = np.asarray(action, dtype=np.float64)

@@ -130,19 +130,26 @@ class StreamSimulation(Simulation):
         """Aircraft flying now."""
         return int((self.status == FLYING).sum())
 
-    def advance(self, waypoints: np.ndarray, seconds: float) -> Trace:
-        """Fly ``seconds`` toward ``waypoints`` (slots, 2) nm; then retire the flights that
-        arrived or left and admit those due. The clock moves by ``seconds`` even when no
-        aircraft flies (the kernel stops early then)."""
+    def advance(self, waypoints: np.ndarray, seconds: float, next_decision: bool = True) -> Trace:
+        """Fly ``seconds`` toward ``waypoints`` (slots, 2) nm; then, unless
+        ``next_decision`` is False (the caller calls ``next_decision`` itself after reading
+        the slots as flown), retire the flights that arrived or left and admit those due.
+        The clock moves by ``seconds`` even when no aircraft flies (the kernel stops early
+        then)."""
         start_s = self.time_s
         steps = kernel.steps_for(float(seconds), self.config.dt_s)
         occupant = self.slot_flight.copy()
         trace = super().advance(waypoints, seconds)
         self.time_s = start_s + steps * self.config.dt_s
         self._log_trace(trace, occupant)
+        if next_decision:
+            self.next_decision()
+        return trace
+
+    def next_decision(self) -> None:
+        """Empty the slots of the flights that arrived or left, then let in those due."""
         self._retire()
         self._admit()
-        return trace
 
     # -- bookkeeping ----------------------------------------------------------------
     def _log_trace(self, trace: Trace, occupant: np.ndarray) -> None:
