@@ -24,7 +24,8 @@ env's (``ATCParallelEnv``), the reward of a period counted from the flight's slo
 Gymnasium: ``StreamEnv``'s observation is a dict of ``aircraft`` Box(M, D) (the encounter
 env's per-aircraft observation in each of the M slots, zeros where empty) and ``mask``
 MultiBinary(M) (1: an aircraft is airborne in that slot); its action Box(-1, 1, (M, 2)),
-rows of empty slots ignored; its reward the sum over the aircraft. ``info["slot_flight"]``
+rows of empty slots ignored; its reward the sum over the aircraft; it never terminates and is truncated at the
+episode's end. ``info["slot_flight"]``
 maps slots to flights (-1: empty), and ``info["stream"]`` holds the stream's metrics at
 the episode's end.
 
@@ -111,14 +112,10 @@ class StreamWorld:
         return self.time_s >= self.limit_s - 1e-9
 
     @property
-    def finished(self) -> bool:
-        """Every flight of the stream has entered and arrived or left before the limit."""
-        assert self.sim is not None
-        return not self.truncated and self.sim.done
-
-    @property
     def over(self) -> bool:
-        return self.truncated or self.finished
+        """The episode's end: the stream's length (or a shorter limit) has passed, with
+        aircraft possibly still airborne: a truncation, never a termination."""
+        return self.truncated
 
     def _skip_empty(self) -> None:
         """Fly the periods in which no aircraft is airborne (only the clock moves)."""
@@ -354,7 +351,7 @@ class StreamEnv(gym.Env):
             )
         outcome = self.world.step(array)
         reward = float(outcome["reward"].sum())
-        return self._observation(), reward, self.world.finished, self.world.truncated, self._info()
+        return self._observation(), reward, False, self.world.truncated, self._info()
 
 
 __all__ = ["AGENT_PREFIX", "StreamEnv", "StreamParallelEnv", "StreamWorld", "is_stream"]
