@@ -258,6 +258,7 @@ class StreamSimulation(Simulation):
         los = len(log.los_pairs)
         return {
             "rate_per_hour": s.rate_per_hour,
+            "sector_radius_nm": s.sector_radius_nm,
             "duration_min": s.duration_s / 60.0,
             "max_airborne_slots": int(s.max_airborne),
             "flights_scheduled": int(s.n_flights),
