@@ -372,6 +372,14 @@ class StreamScenario(Scenario):
         """Flights of the episode (airborne or not)."""
         return int(self.start_xy.shape[0])
 
+    def to_dict(self) -> dict[str, Any]:
+        """Not for a stream: the dict format holds an encounter (all aircraft at t = 0).
+        A stream is named by ``stream-R`` and a seed, or built with ``stream_scenario``."""
+        raise ValueError(
+            f"{self.name!r} is a traffic stream: the scenario dict holds encounters only; name the stream "
+            "('stream-R' with a seed) or build it with atc_nf_env.scenarios.stream_scenario"
+        )
+
     def canonical_json(self) -> str:
         """``Scenario.canonical_json`` plus the schedule, the length and the slots."""
         flown = json.loads(super().canonical_json())

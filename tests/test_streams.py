@@ -68,6 +68,7 @@ def test_stream_rate_matches_poisson_mean():
         (lambda: make_scenario("stream-60-0min"), r"duration_min = 0\.0: .*\(0, 1440\]"),
         (lambda: make_scenario("stream-abc"), r"'stream-abc': the rate R is not a number"),
         (lambda: make_scenario("stream-60-xmin"), r"the length D is not a number"),
+        (lambda: make_scenario("stream-60", seed=1).to_dict(), r"'stream-60' is a traffic stream"),
     ],
 )
 def test_bad_stream_inputs_name_the_allowed_range(call, message):
@@ -291,3 +292,11 @@ def test_slot_counts_are_bounded_and_fixed_per_env():
     env.reset(seed=2)
     assert env.world.sim.state.shape[1] == 7
     assert max(env.world.sim.airborne, 0) <= 7
+
+
+def test_a_stream_env_lasts_the_stream_unless_a_limit_is_given():
+    import atc_nf_env
+
+    assert atc_nf_env.parallel_env(scenario="stream-10-300min").world.limit_s == 300 * 60.0
+    assert atc_nf_env.parallel_env(scenario="stream-10-300min", max_cycles=6).world.limit_s == 30 * 60.0
+    assert atc_nf_env.parallel_env(scenario="stream-10", max_episode_minutes=60).world.limit_s == 60 * 60.0
