@@ -144,7 +144,7 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--scenario",
         default="converging-4",
-        help="converging-N (the paper's encounter: 3, 4, 6), random-N, or a scenario .json file",
+        help="converging-N (the paper's encounter: 3, 4, 6), random-N, stream-R (R aircraft an hour entering for 120 min; stream-R-Dmin: D min), or a scenario .json file",
     )
     parser.add_argument(
         "--wind-sigma",

@@ -14,8 +14,9 @@ import numpy as np
 from atc_nf_env.config import SimConfig
 from atc_nf_env.metrics import RunMetrics, run_metrics
 from atc_nf_env.policy import Policy
-from atc_nf_env.scenarios import Scenario, check_seed, make_scenario
-from atc_nf_env.simulation import Simulation, sample_wind_kt
+from atc_nf_env.scenarios import Scenario, StreamScenario, check_seed, make_scenario
+from atc_nf_env.simulation import sample_wind_kt
+from atc_nf_env.streams import make_simulation
 from atc_nf_env.units import DECISION_PERIOD_S, WIND_SIGMA_MPS
 
 #: Default time limit of an episode, s: room for the 6-aircraft NF roundabout.
@@ -137,13 +138,15 @@ def run_episode(
     record_every: int = 0,
 ) -> EpisodeResult:
     """Fly ``scenario`` with ``policy`` until every aircraft has arrived or left, or
-    ``max_time_s`` has passed.
+    ``max_time_s`` has passed; a traffic stream (``stream-R``) until its length has passed
+    (or ``max_time_s``, if shorter), its aircraft entering and leaving meanwhile.
 
     Args:
         policy: any object of the ``Policy`` interface.
         scenario: the encounter: a ``Scenario``, or anything ``make_scenario`` resolves (a
-            name such as ``"random-6"``, a dict, a .json path), resolved with ``seed``: a
-            ``random-N`` name is drawn with this run's seed, as the evaluator does. A
+            name such as ``"random-6"`` or ``"stream-60"``, a dict, a .json path), resolved
+            with ``seed``: a ``random-N`` or ``stream-R`` name is drawn with this run's
+            seed, as the evaluator does. A
             ``Scenario`` is flown as given; one drawn by ``random_encounter`` with another
             seed than ``seed`` flies with a ``LayoutSeedWarning`` (its layout is the seed
             it was drawn with, only the wind follows ``seed``).
@@ -165,7 +168,11 @@ def run_episode(
     period_steps = whole_steps("period_s", period_s, config.dt_s)
     limit_steps = whole_steps("max_time_s", max_time_s, config.dt_s)
     wind = episode_wind_kt(seed, wind_sigma_mps) if wind_kt is None else wind_kt  # Simulation checks it
-    sim = Simulation(scenario, config=config, wind_kt=wind, record_every=record_every)
+    stream = isinstance(scenario, StreamScenario)
+    if stream:
+        # A stream ends at its length (flights still airborne then are counted as such).
+        limit_steps = min(limit_steps, whole_steps("the stream's duration_s", scenario.duration_s, config.dt_s))
+    sim = make_simulation(scenario, config=config, wind_kt=wind, record_every=record_every)
     # A policy with a stated operating range (trained agents) checks the traffic and the
     # wind's sigma here: reset() sees the scenario but not the sigma.
     check_conditions = getattr(policy, "check_operating_conditions", None)
@@ -178,8 +185,15 @@ def run_episode(
     steps_done = 0  # counted in whole steps: a float clock could stall short of the limit
     start = time.perf_counter()
     while not sim.done and steps_done < limit_steps:
+        view = sim.view()
+        if stream and not view.flying.any():
+            # An empty sector: nothing to decide until the next flight enters.
+            steps = min(period_steps, limit_steps - steps_done)
+            sim.advance(view.waypoints, steps * config.dt_s)
+            steps_done += steps
+            continue
         t0 = time.perf_counter()
-        action = policy.act(sim.view())
+        action = policy.act(view)
         if np.iscomplexobj(action):
             raise ValueError(f"{type(policy).__name__}.act returned complex waypoints; expected real (N, 2) nm")
         action = np.asarray(action, dtype=np.float64)

@@ -611,7 +611,8 @@ class ResultsFile:
 
 def _metrics_from(record: dict[str, Any]) -> RunMetrics:
     names = RunMetrics.__dataclass_fields__
-    return RunMetrics(**{key: record[key] for key in names})
+    # ``stream`` came later: a record written before it (or of an encounter) may lack it.
+    return RunMetrics(**{key: record[key] for key in names if key in record or key != "stream"})
 
 
 def evaluate(

@@ -46,6 +46,8 @@ class RunMetrics:
     wall_s: float
     decisions: int
     decision_s_mean: float
+    #: A traffic stream's metrics (``stream_run_metrics``); None for an encounter.
+    stream: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -58,7 +60,14 @@ def run_metrics(
     wall_s: float,
     decision_s: Iterable[float],
 ) -> RunMetrics:
-    """Metrics of a finished (or truncated) simulation."""
+    """Metrics of a finished (or truncated) simulation. For a traffic stream the
+    per-aircraft lists are over the flights that entered, in the order they were due,
+    ``success`` means that none of them left the workspace (those still airborne at the
+    end count as neither arrived nor failed), and ``stream`` holds the stream's metrics."""
+    from atc_nf_env.streams import StreamSimulation
+
+    if isinstance(sim, StreamSimulation):
+        return _stream_run_metrics(sim, seed=seed, wall_s=wall_s, decision_s=decision_s)
     state = sim.state[0, : sim.n_aircraft]
     stats = sim.stats
     decision_list = list(decision_s)
@@ -90,6 +99,89 @@ def run_metrics(
         decisions=len(decision_list),
         decision_s_mean=float(np.mean(decision_list)) if decision_list else 0.0,
     )
+
+
+#: What each of a stream's metrics means (``RunMetrics.stream``; times in s).
+STREAM_METRIC_NOTES: dict[str, str] = {
+    "throughput_per_hour": "flights that arrived per hour of the episode",
+    "delay_s": "over arrived flights: flight time minus the direct flight's (straight line at 454 kt, no wind)",
+    "entry_delay_s": "over entered flights: entry time minus due time (entries happen at decision instants)",
+    "entries_held": "flights that could not enter at the first decision instant they were due at (slot or clearance)",
+    "los_per_flight_hour": "pairs of flights that lost separation per hour flown by all flights",
+    "max_airborne": "most aircraft airborne at once (at decision instants)",
+}
+
+
+def _stream_run_metrics(sim: Any, *, seed: int | None, wall_s: float, decision_s: Iterable[float]) -> RunMetrics:
+    from atc_nf_env.streams import AIRBORNE, DONE_ARRIVED, DONE_LEFT
+
+    stream = sim.stream_metrics()  # also copies the airborne flights' times and paths
+    log = sim.flights
+    entered = np.flatnonzero(np.isfinite(log.entered_s))
+    arrived = log.state[entered] == DONE_ARRIVED
+    flown = int(log.steps_flown.sum())
+    stats = sim.stats
+    min_sep = stats.min_separation_nm
+    decision_list = list(decision_s)
+    flew = log.steps_flown > 0
+    return RunMetrics(
+        scenario=sim.scenario.name,
+        seed=seed,
+        n_aircraft=int(entered.size),
+        wind_kt=[float(w) for w in sim.wind_kt],
+        arrived=[bool(a) for a in arrived],
+        left_workspace=[bool(s == DONE_LEFT) for s in log.state[entered]],
+        flight_time_min=[float(t) / 60.0 for t in log.flight_time_s[entered]],
+        path_length_nm=[float(p) for p in log.path_nm[entered]],
+        success=not bool((log.state == DONE_LEFT).any()),
+        min_separation_nm=None if min_sep >= NO_PAIR_SEPARATION_NM else float(min_sep),
+        los_count=len(log.los_pairs),
+        envelope_violation_fraction=float(log.violation_steps.sum()) / flown if flown else 0.0,
+        worst_excursion_kt=float(log.worst_excursion_kt.max(initial=0.0)),
+        airspeed_min_kt=float(log.min_airspeed_kt[flew].min()) if flew.any() else None,
+        airspeed_max_kt=float(log.max_airspeed_kt[flew].max()) if flew.any() else None,
+        steps_flown=flown,
+        sim_time_min=sim.time_s / 60.0,
+        wall_s=wall_s,
+        decisions=len(decision_list),
+        decision_s_mean=float(np.mean(decision_list)) if decision_list else 0.0,
+        stream=stream | {"airborne_flights": int((log.state == AIRBORNE).sum())},
+    )
+
+
+def summarize_streams(runs: list[RunMetrics]) -> dict[str, Any] | None:
+    """The stream block of a summary (None when no run is a stream): totals and means over
+    runs, the delays' mean over all flights and max over runs, LoS per flight hour pooled."""
+    streams = [r.stream for r in runs if r.stream]
+    if not streams:
+        return None
+    hours = sum(s["flight_hours"] for s in streams)
+    los = sum(s["los_count"] for s in streams)
+
+    def pooled(key: str, count_key: str) -> dict[str, float | None]:
+        weighted = [(s[key]["mean"], s[count_key]) for s in streams if s[key]["mean"] is not None]
+        total = sum(n for _, n in weighted)
+        maxima = [s[key]["max"] for s in streams if s[key]["max"] is not None]
+        return {
+            "mean": sum(m * n for m, n in weighted) / total if total else None,
+            "max": max(maxima) if maxima else None,
+        }
+
+    return {
+        "runs": len(streams),
+        "flights_entered": int(sum(s["flights_entered"] for s in streams)),
+        "flights_completed": int(sum(s["flights_completed"] for s in streams)),
+        "flights_left_workspace": int(sum(s["flights_left_workspace"] for s in streams)),
+        "entries_held": int(sum(s["entries_held"] for s in streams)),
+        "throughput_per_hour": _stats([s["throughput_per_hour"] for s in streams]),
+        "delay_s": pooled("delay_s", "flights_completed"),
+        "entry_delay_s": pooled("entry_delay_s", "flights_entered"),
+        "flight_hours": hours,
+        "los_count": int(los),
+        "los_per_flight_hour": los / hours if hours > 0 else 0.0,
+        "max_airborne": int(max(s["max_airborne"] for s in streams)),
+        "notes": STREAM_METRIC_NOTES,
+    }
 
 
 def _stats(values: list[float]) -> dict[str, float | None]:
@@ -184,7 +276,7 @@ def summarize(
         "compile_s": compile_s,
         "timing_note": TIMING_NOTE,
         "peak_rss_mb": peak_rss_mb,
-    }
+    } | ({"stream": stream} if (stream := summarize_streams(runs)) is not None else {})
 
 
 def _reached_cap(run: RunMetrics, airspeed_cap_kt: float) -> bool:
@@ -222,4 +314,27 @@ def format_run(metrics: RunMetrics) -> str:
         f"  simulated {metrics.sim_time_min:.1f} min in {metrics.wall_s:.2f} s wall, "
         f"{metrics.decisions} decisions of {metrics.decision_s_mean * 1e3:.2f} ms",
     ]
+    if metrics.stream:
+        lines[1:1] = [format_stream(metrics.stream)]
+        lines = [line for line in lines if not line.startswith(("  flight time", "  path length"))]
     return "\n".join(lines)
+
+
+def _seconds(block: dict[str, Any]) -> str:
+    if block["mean"] is None:
+        return "n/a"
+    return f"mean {block['mean']:.0f} s, max {block['max']:.0f} s"
+
+
+def format_stream(stream: dict[str, Any]) -> str:
+    """A stream's metrics in a few lines."""
+    return "\n".join([
+        f"  stream: {stream['flights_entered']} of {stream['flights_due']} due flights entered "
+        f"({stream['entries_held']} held), {stream['flights_completed']} completed, "
+        f"{stream['airborne_at_end']} airborne at the end, max airborne {stream['max_airborne']} "
+        f"of {stream['max_airborne_slots']} slots",
+        f"  throughput {stream['throughput_per_hour']:.1f} flights/h  delay vs direct {_seconds(stream['delay_s'])}"
+        f"  entry delay {_seconds(stream['entry_delay_s'])}",
+        f"  LoS {stream['los_count']} in {stream['flight_hours']:.1f} flight hours "
+        f"({stream['los_per_flight_hour']:.3f} per flight hour)",
+    ])

@@ -79,6 +79,47 @@ def plot_trajectories(result: EpisodeResult, path: str | Path, title: str | None
     plt.close(fig)
 
 
+#: A jump of a slot's position between two records larger than this (nm) is one flight
+#: leaving the slot and the next entering it: the track is cut there.
+STREAM_TRACK_JUMP_NM: float = 30.0
+
+
+def plot_stream_trajectories(result: EpisodeResult, path: str | Path, title: str | None = None, *,
+                             policy: str | None = None, wind_sigma_mps: float | None = None,
+                             sector_radius_nm: float | None = None) -> None:
+    """Ground tracks of a traffic stream's flights (a slot's track cut where one flight
+    left it and the next entered), a dot where each track ends, and the sector's edge."""
+    plt = _pyplot()
+    records = result.records
+    if records.shape[0] == 0:
+        raise ValueError("the episode was run without recording (record_every = 0)")
+    fig, ax = plt.subplots(figsize=(6.4, 6.6))
+    if sector_radius_nm:
+        circle = np.linspace(0.0, 2.0 * np.pi, 361)
+        ax.plot(sector_radius_nm * np.cos(circle), sector_radius_nm * np.sin(circle), color="0.6", lw=1, ls="--",
+                label="sector edge")
+    for i in range(records.shape[1]):
+        flew = records[:, i, R_FLEW] > 0
+        xy = records[:, i, R_X : R_Y + 1].copy()
+        jump = np.r_[False, np.hypot(*np.diff(xy, axis=0).T) > STREAM_TRACK_JUMP_NM]
+        segment = np.cumsum(jump | np.r_[False, flew[1:] & ~flew[:-1]])
+        for k in np.unique(segment[flew]):
+            rows = flew & (segment == k)
+            ax.plot(xy[rows, 0], xy[rows, 1], lw=0.9, color=aircraft_color(int(k) * 7 + i), alpha=0.85)
+            last = np.flatnonzero(rows)[-1]
+            ax.plot(*xy[last], ".", color="k", ms=3, zorder=3)
+    ax.plot([], [], ".", color="k", ms=5, label="end of track (arrival or end of episode)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (nm)")
+    ax.set_ylabel("y (nm)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
+    ax.set_title(title or episode_title(result, "trajectories", policy, wind_sigma_mps), fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _moves_waypoints(result: EpisodeResult) -> bool:
     waypoints = result.waypoints
     return len(waypoints) > 1 and bool(np.any(np.abs(np.diff(waypoints, axis=0)) > 1e-6))
@@ -101,7 +142,8 @@ def plot_airspeed(result: EpisodeResult, path: str | Path, title: str | None = N
     fig, ax = plt.subplots(figsize=(8, 4.6 if caption else 4.2))
     for i in range(records.shape[1]):
         flew = records[:, i, R_FLEW] > 0
-        ax.plot(minutes[flew], records[flew, i, R_AIRSPEED], lw=1.2, color=aircraft_color(i), label=f"aircraft {i}")
+        ax.plot(minutes[flew], records[flew, i, R_AIRSPEED], lw=1.2, color=aircraft_color(i),
+                label=None if result.metrics.stream else f"aircraft {i}")  # a stream's slots: no legend each
     ax.axhline(AIRSPEED_MIN_KT, color="k", ls="--", lw=1)
     ax.axhline(AIRSPEED_MAX_KT, color="k", ls="--", lw=1,
                label=f"envelope {AIRSPEED_MIN_KT:g}–{AIRSPEED_MAX_KT:g} kt")
@@ -137,6 +179,10 @@ def write_episode_plots(result: EpisodeResult, directory: str | Path, prefix: st
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = [directory / f"{prefix}_trajectories.png", directory / f"{prefix}_airspeed.png"]
-    plot_trajectories(result, paths[0], policy=policy, wind_sigma_mps=wind_sigma_mps)
+    if result.metrics.stream:
+        plot_stream_trajectories(result, paths[0], policy=policy, wind_sigma_mps=wind_sigma_mps,
+                                 sector_radius_nm=result.metrics.stream.get("sector_radius_nm"))
+    else:
+        plot_trajectories(result, paths[0], policy=policy, wind_sigma_mps=wind_sigma_mps)
     plot_airspeed(result, paths[1], policy=policy, wind_sigma_mps=wind_sigma_mps)
     return paths

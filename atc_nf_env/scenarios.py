@@ -119,12 +119,16 @@ class Scenario:
         }
 
 
-def validate_scenario(scenario: Scenario) -> None:
-    """Raise ValueError, naming the field, the value and what is allowed, if the scenario is impossible."""
+def validate_scenario(scenario: Scenario, check_start_separation: bool = True, allow_empty: bool = False) -> None:
+    """Raise ValueError, naming the field, the value and what is allowed, if the scenario is impossible.
+
+    ``check_start_separation``: whether the starts must be 5 nm apart; ``allow_empty``:
+    whether no aircraft at all is allowed (both for a stream, whose flights start at
+    different times and may be none)."""
     n = scenario.start_xy.shape[0] if scenario.start_xy.ndim == 2 else -1
     if scenario.start_xy.ndim != 2 or scenario.start_xy.shape[1:] != (2,):
         raise ValueError(f"start_xy has shape {scenario.start_xy.shape}; expected (n, 2)")
-    if n < 1:
+    if n < (0 if allow_empty else 1):
         raise ValueError(f"number of aircraft n = {n}: must be >= 1")
     expected = {"start_heading": (n,), "dest_xy": (n, 2), "dest_heading": (n,)}
     for name, shape in expected.items():
@@ -159,7 +163,7 @@ def validate_scenario(scenario: Scenario) -> None:
                 f"{name}[{i}] = {getattr(scenario, name)[i].tolist()} lies {dist[i]:.1f} nm from the "
                 f"centre: must be within workspace_radius_nm - aircraft radius = {inner:.1f} nm"
             )
-    if n > 1:
+    if n > 1 and check_start_separation:
         diff = scenario.start_xy[:, None, :] - scenario.start_xy[None, :, :]
         sep = np.hypot(diff[..., 0], diff[..., 1]) + np.diag(np.full(n, np.inf))
         i, j = np.unravel_index(int(np.argmin(sep)), sep.shape)
@@ -288,6 +292,198 @@ def random_encounter(
         dest_xy=dest,
         dest_heading=heading,
         metadata={"seed": seed},
+        **kwargs,
+    )
+
+
+#: Default length of a stream episode, min.
+STREAM_DURATION_MIN: float = 120.0
+#: Largest arrival rate of a stream, aircraft per hour (one every 6 s).
+MAX_STREAM_RATE_PER_H: float = 600.0
+#: Longest stream, min (a day, as any episode's time limit).
+MAX_STREAM_DURATION_MIN: float = 24 * 60.0
+#: Default clearance an entering aircraft needs from every aircraft already in, nm: it
+#: enters only where nothing flies within this distance, and waits otherwise. Four
+#: separation minima: an aircraft closer than that is a conflict within two minutes.
+STREAM_ENTRY_CLEARANCE_NM: float = 20.0
+
+
+@dataclass(frozen=True, eq=False)
+class StreamScenario(Scenario):
+    """Traffic entering a circular sector over time: the flights of one episode.
+
+    ``start_xy``, ``start_heading``, ``dest_xy`` and ``dest_heading`` hold every flight of
+    the episode (entry point on the sector's edge, destination across it), in the order
+    they are due; ``entry_time_s`` (s) says when each is due. A flight enters at the first
+    decision instant at or after its time at which a slot is free and no aircraft flies
+    within ``entry_clearance_nm`` of its entry point (``atc_nf_env.streams``).
+
+    The world holds ``max_airborne`` aircraft slots (the kernel state's fixed size): an
+    aircraft that has not entered, or has arrived, leaves its slot empty (ABSENT) and out
+    of every interaction. ``n_aircraft`` is that slot count; ``n_flights`` the flights.
+
+    Attributes (beyond ``Scenario``'s):
+        entry_time_s: (M,) times the flights are due, s, non-decreasing, in [0, duration_s).
+        duration_s: length of the episode, s.
+        max_airborne: aircraft slots, >= 1.
+        rate_per_hour: the mean arrival rate the schedule was drawn with, aircraft/h.
+        sector_radius_nm: radius of the sector the flights cross, nm.
+        entry_clearance_nm: clearance an entering aircraft needs, nm.
+    """
+
+    entry_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    duration_s: float = STREAM_DURATION_MIN * 60.0
+    max_airborne: int = 1
+    rate_per_hour: float = 0.0
+    sector_radius_nm: float = ENCOUNTER_RADIUS_NM
+    entry_clearance_nm: float = STREAM_ENTRY_CLEARANCE_NM
+
+    def __post_init__(self) -> None:
+        for name in ("start_xy", "start_heading", "dest_xy", "dest_heading", "entry_time_s"):
+            object.__setattr__(self, name, np.array(getattr(self, name), dtype=np.float64))
+        validate_scenario(self, check_start_separation=False, allow_empty=True)
+        times = self.entry_time_s
+        if times.shape != (self.n_flights,):
+            raise ValueError(f"entry_time_s has shape {times.shape}; expected ({self.n_flights},)")
+        duration = self.duration_s
+        if not (math.isfinite(duration) and 0 < duration <= MAX_STREAM_DURATION_MIN * 60.0):
+            raise ValueError(
+                f"duration_s = {duration!r}: must be a number of seconds in (0, {MAX_STREAM_DURATION_MIN * 60:g}]"
+            )
+        if not (np.isfinite(times).all() and (times >= 0).all() and (times < duration).all()):
+            raise ValueError(f"entry_time_s must be finite and in [0, duration_s = {duration:g}) s")
+        if (np.diff(times) < 0).any():
+            raise ValueError("entry_time_s must be non-decreasing (flights in the order they are due)")
+        if isinstance(self.max_airborne, bool) or not isinstance(self.max_airborne, (int, np.integer)) \
+                or self.max_airborne < 1:
+            raise ValueError(f"max_airborne = {self.max_airborne!r}: must be an integer >= 1")
+        if not (math.isfinite(self.entry_clearance_nm) and self.entry_clearance_nm >= SEPARATION_MIN_NM):
+            raise ValueError(
+                f"entry_clearance_nm = {self.entry_clearance_nm!r}: must be a number of nm >= {SEPARATION_MIN_NM}"
+            )
+
+    @property
+    def n_aircraft(self) -> int:
+        """Aircraft slots of the world (``max_airborne``): the kernel state's size."""
+        return int(self.max_airborne)
+
+    @property
+    def n_flights(self) -> int:
+        """Flights of the episode (airborne or not)."""
+        return int(self.start_xy.shape[0])
+
+    def to_dict(self) -> dict[str, Any]:
+        """Not for a stream: the dict format holds an encounter (all aircraft at t = 0).
+        A stream is named by ``stream-R`` and a seed, or built with ``stream_scenario``."""
+        raise ValueError(
+            f"{self.name!r} is a traffic stream: the scenario dict holds encounters only; name the stream "
+            "('stream-R' with a seed) or build it with atc_nf_env.scenarios.stream_scenario"
+        )
+
+    def canonical_json(self) -> str:
+        """``Scenario.canonical_json`` plus the schedule, the length and the slots."""
+        flown = json.loads(super().canonical_json())
+        flown.update(
+            entry_time_s=self.entry_time_s.tolist(),
+            duration_s=float(self.duration_s),
+            max_airborne=int(self.max_airborne),
+            entry_clearance_nm=float(self.entry_clearance_nm),
+        )
+        return json.dumps(flown, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def _check_stream_numbers(rate_per_hour: Any, duration_min: Any) -> tuple[float, float]:
+    """The rate (aircraft/h) and length (min) as floats, or a ValueError naming the allowed range."""
+    if not _is_number(rate_per_hour) or not (
+        math.isfinite(float(rate_per_hour)) and 0 < float(rate_per_hour) <= MAX_STREAM_RATE_PER_H
+    ):
+        raise ValueError(
+            f"rate_per_hour = {_shown(rate_per_hour)}: must be a number of aircraft per hour in "
+            f"(0, {MAX_STREAM_RATE_PER_H:g}]"
+        )
+    if not _is_number(duration_min) or not (
+        math.isfinite(float(duration_min)) and 0 < float(duration_min) <= MAX_STREAM_DURATION_MIN
+    ):
+        raise ValueError(
+            f"duration_min = {_shown(duration_min)}: must be a number of minutes in (0, {MAX_STREAM_DURATION_MIN:g}]"
+        )
+    return float(rate_per_hour), float(duration_min)
+
+
+def default_max_airborne(rate_per_hour: float, sector_radius_nm: float = ENCOUNTER_RADIUS_NM) -> int:
+    """Slots of a stream: the mean number airborne in steady state (rate × the time to
+    cross the sector's diameter at the nominal airspeed) plus four standard deviations of
+    a Poisson count and four, so that a full sector makes an entry wait only rarely."""
+    airborne = rate_per_hour * 2.0 * sector_radius_nm / AIRSPEED_NOMINAL_KT
+    return int(math.ceil(airborne + 4.0 * math.sqrt(airborne) + 4.0))
+
+
+def max_stream_flights(rate_per_hour: float, duration_min: float) -> int:
+    """The most flights a stream schedules: the Poisson mean over the episode plus six
+    standard deviations and six (a bound the count passes with probability < 1e-9; a
+    schedule that would pass it is cut there, and says so in its metadata)."""
+    mean = rate_per_hour * duration_min / 60.0
+    return int(math.ceil(mean + 6.0 * math.sqrt(mean) + 6.0))
+
+
+def stream_scenario(
+    rate_per_hour: float,
+    seed: int,
+    duration_min: float = STREAM_DURATION_MIN,
+    *,
+    sector_radius_nm: float = ENCOUNTER_RADIUS_NM,
+    max_deviation_deg: float = 45.0,
+    max_airborne: int | None = None,
+    entry_clearance_nm: float = STREAM_ENTRY_CLEARANCE_NM,
+    **kwargs: Any,
+) -> StreamScenario:
+    """A seeded traffic stream: Poisson arrivals at ``rate_per_hour`` over ``duration_min``.
+
+    Each flight enters at a uniformly random point of the sector's edge (a circle of
+    ``sector_radius_nm`` around the workspace centre) and is bound for the point across
+    it, turned by δ uniform in ±``max_deviation_deg`` (as ``random_encounter``), heading
+    along the line between them. Its due time is the previous one's plus an exponential
+    gap of mean 1/rate. ``max_airborne`` (default ``default_max_airborne``) bounds the
+    aircraft airborne at once; at most ``max_stream_flights`` flights are scheduled.
+
+    Raises ValueError, naming the allowed range, on a rate outside (0, 600] aircraft/h, a
+    length outside (0, 1440] min, or a bad seed, radius, deviation or slot count.
+    """
+    rate, duration = _check_stream_numbers(rate_per_hour, duration_min)
+    seed = _check_seed(seed)
+    if not (math.isfinite(sector_radius_nm) and 0 < sector_radius_nm):
+        raise ValueError(f"sector_radius_nm = {sector_radius_nm!r}: must be a finite number of nm > 0")
+    if not (math.isfinite(max_deviation_deg) and 0 <= max_deviation_deg <= 90):
+        raise ValueError(f"max_deviation_deg = {max_deviation_deg!r}: must be a number of degrees in [0, 90]")
+    slots = default_max_airborne(rate, sector_radius_nm) if max_airborne is None else max_airborne
+    rng = np.random.default_rng([seed, 0x5354524D])  # a stream of its own, apart from the wind's
+    bound = max_stream_flights(rate, duration)
+    gaps = rng.exponential(3600.0 / rate, size=bound + 1)
+    due = np.cumsum(gaps)
+    count = int(np.searchsorted(due, duration * 60.0, side="left"))
+    cut = count > bound
+    count = min(count, bound)
+    times = due[:count]
+    angles = rng.uniform(-np.pi, np.pi, size=bound)[:count]
+    turns = rng.uniform(-1.0, 1.0, size=bound)[:count] * math.radians(max_deviation_deg)
+    start = sector_radius_nm * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    dest_angles = angles + np.pi + turns
+    dest = sector_radius_nm * np.stack([np.cos(dest_angles), np.sin(dest_angles)], axis=1)
+    heading = np.arctan2(dest[:, 1] - start[:, 1], dest[:, 0] - start[:, 0])
+    name = f"stream-{rate:g}" if duration == STREAM_DURATION_MIN else f"stream-{rate:g}-{duration:g}min"
+    return StreamScenario(
+        name=name,
+        start_xy=start,
+        start_heading=heading,
+        dest_xy=dest,
+        dest_heading=heading,
+        entry_time_s=times,
+        duration_s=duration * 60.0,
+        max_airborne=slots,
+        rate_per_hour=rate,
+        sector_radius_nm=sector_radius_nm,
+        entry_clearance_nm=entry_clearance_nm,
+        metadata={"seed": seed, "schedule_cut": cut},
         **kwargs,
     )
 
@@ -440,19 +636,48 @@ def scenario_from_json(path: str | Path) -> Scenario:
 
 
 _NAME_PATTERN = re.compile(r"^(converging|random)-(\d+)$")
+#: ``stream-R`` or ``stream-R-Dmin``: R aircraft an hour for D minutes (default 120).
+_STREAM_PATTERN = re.compile(r"^stream-([^-]*)(?:-(.*)min)?$")
 
 
 def draws_per_seed(spec: Any) -> bool:
     """Whether ``make_scenario(spec, seed)`` gives each seed its own layout (a ``random-N``
-    name) rather than one encounter whatever the seed."""
-    return isinstance(spec, str) and bool(_NAME_PATTERN.match(spec)) and spec.startswith("random-")
+    or ``stream-R`` name) rather than one encounter whatever the seed."""
+    if not isinstance(spec, str):
+        return False
+    return (bool(_NAME_PATTERN.match(spec)) and spec.startswith("random-")) or bool(_STREAM_PATTERN.match(spec))
+
+
+def _parse_stream_name(spec: str, seed: int) -> StreamScenario:
+    """``stream-R`` / ``stream-R-Dmin`` drawn with ``seed``; ValueError naming the ranges."""
+    match = _STREAM_PATTERN.match(spec)
+    assert match is not None
+    numbers = []
+    for text, what in ((match.group(1), "rate R"), (match.group(2), "length D")):
+        if text is None:
+            numbers.append(STREAM_DURATION_MIN)
+            continue
+        try:
+            numbers.append(float(text))
+        except ValueError:
+            raise ValueError(
+                f"scenario {spec!r}: the {what} is not a number; write 'stream-R' (R aircraft per hour in "
+                f"(0, {MAX_STREAM_RATE_PER_H:g}], {STREAM_DURATION_MIN:g} min) or 'stream-R-Dmin' (D minutes in "
+                f"(0, {MAX_STREAM_DURATION_MIN:g}]), e.g. stream-60 or stream-60-90min"
+            ) from None
+    try:
+        return stream_scenario(numbers[0], seed=seed, duration_min=numbers[1])
+    except ValueError as error:
+        raise ValueError(f"scenario {spec!r}: {error}") from None
 
 
 def make_scenario(spec: str | Scenario | Mapping[str, Any], seed: int | None = None) -> Scenario:
     """Resolve a scenario: a Scenario, a dict, a path to a ``.json`` file, or a name.
 
     Names: ``converging-N`` (the paper's encounter with N aircraft; the paper uses 3, 4
-    and 6) and ``random-N`` (a random encounter of N aircraft drawn with ``seed``).
+    and 6), ``random-N`` (a random encounter of N aircraft drawn with ``seed``) and
+    ``stream-R`` / ``stream-R-Dmin`` (traffic entering at R aircraft an hour for D minutes,
+    default 120, drawn with ``seed``: ``stream_scenario``).
     """
     if isinstance(spec, Scenario):
         return spec
@@ -462,11 +687,14 @@ def make_scenario(spec: str | Scenario | Mapping[str, Any], seed: int | None = N
         raise ValueError(f"scenario = {spec!r}: must be a name, a .json path, a dict or a Scenario")
     if spec.endswith(".json"):
         return scenario_from_json(spec)
+    if _STREAM_PATTERN.match(spec):
+        return _parse_stream_name(spec, 0 if seed is None else seed)
     match = _NAME_PATTERN.match(spec)
     if not match:
         raise ValueError(
             f"unknown scenario {spec!r}; allowed: 'converging-N' (e.g. converging-3, "
-            "converging-4, converging-6), 'random-N', or a path to a .json file"
+            "converging-4, converging-6), 'random-N', 'stream-R' or 'stream-R-Dmin' (e.g. stream-60, "
+            "stream-60-90min), or a path to a .json file"
         )
     kind, n = match.group(1), int(match.group(2))
     if n < 1:

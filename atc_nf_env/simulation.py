@@ -36,13 +36,17 @@ from atc_nf_env.kernel import (
     S_FRESH,
     Trace,
 )
-from atc_nf_env.scenarios import Scenario
+from atc_nf_env.scenarios import Scenario, StreamScenario
 from atc_nf_env.units import KT_PER_MPS, WIND_SIGMA_MPS
 
 
 def initial_state(scenario: Scenario, n_worlds: int = 1, n_slots: int | None = None) -> np.ndarray:
     """Kernel state (n_worlds, n_slots, N_STATE) at t = 0; slots beyond the scenario's
-    aircraft are ABSENT. Each aircraft's first waypoint is its destination."""
+    aircraft are ABSENT. Each aircraft's first waypoint is its destination. A traffic
+    stream (``StreamScenario``) starts with every slot ABSENT: its flights enter later
+    (``atc_nf_env.streams``)."""
+    if isinstance(scenario, StreamScenario):
+        return kernel.new_state(n_worlds, scenario.n_aircraft if n_slots is None else n_slots)
     n = scenario.n_aircraft
     n_slots = n if n_slots is None else n_slots
     if n_slots < n:

@@ -16,7 +16,7 @@ import numpy as np
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import EpisodeResult
 from atc_nf_env.kernel import R_AIRSPEED_MAX, R_AIRSPEED_MIN, R_FLEW, R_X, R_Y
-from atc_nf_env.metrics import peak_rss_mb, summarize
+from atc_nf_env.metrics import format_stream, peak_rss_mb, summarize
 from atc_nf_env.shield import summarize_interventions
 
 
@@ -116,9 +116,27 @@ def fly_table(
     """One episode: a line on what flew, a row per aircraft (home, flight time, path,
     closest approach, airspeed range) and the run's totals."""
     m = result.metrics
-    closest, low, high = per_aircraft(result)
     head = (f"{policy} on {m.scenario}, seed {m.seed}, wind ({m.wind_kt[0]:+.1f}, {m.wind_kt[1]:+.1f}) kt "
             f"(σ {wind_sigma_mps:g} m/s)")
+    if m.stream:
+        # A stream: its flights share slots, so there is no row per aircraft; its metrics instead.
+        lines = [head, format_stream(m.stream).replace("  ", "", 1),
+                 f"min separation {_number(m.min_separation_nm)} nm, airspeed "
+                 f"{_range(m.airspeed_min_kt, m.airspeed_max_kt)} kt, steps outside "
+                 f"[{config.airspeed_min_kt:.0f}, {config.airspeed_max_kt:.0f}] kt: "
+                 f"{round(m.envelope_violation_fraction * m.steps_flown)} of {m.steps_flown}"
+                 + (f" (worst by {m.worst_excursion_kt:.0f} kt)" if m.envelope_violation_fraction else "")]
+        decisions = result.decision_s
+        timing = f"flew {m.sim_time_min:.1f} simulated min in {m.wall_s:.2f} s"
+        if len(decisions):
+            timing += (f"; {len(decisions)} decisions, {duration(float(np.median(decisions)))} median, "
+                       f"{duration(float(decisions.max()))} max")
+        lines.append(timing)
+        policy_line = _policy_line(info)
+        if policy_line:
+            lines.append(policy_line)
+        return "\n".join(lines)
+    closest, low, high = per_aircraft(result)
     rows = [["aircraft", "home", "flight min", "path nm", "closest nm", "airspeed kt"]]
     for i in range(m.n_aircraft):
         home = "yes" if m.arrived[i] else ("left" if m.left_workspace[i] else "no")
@@ -213,6 +231,23 @@ def evaluate_table(summary: dict[str, Any], records: list[dict[str, Any]], study
         ["airspeed range", f"{_range(speed['min'], speed['max'])} kt"],
         ["decision time", decision_text],
     ]
+    stream = summary.get("stream")
+    if stream is not None:
+        # A stream's run is a success when no aircraft left the workspace (``metrics.run_metrics``).
+        rows[1] = ["no aircraft lost", home]
+        delay, entry = stream["delay_s"], stream["entry_delay_s"]
+        rows += [
+            ["flights", f"{stream['flights_completed']} completed of {stream['flights_entered']} entered "
+                        f"({stream['entries_held']} entries held)"],
+            ["throughput", f"{stream['throughput_per_hour']['mean']:.1f} flights/h mean"],
+            ["delay vs direct", "none completed" if delay["mean"] is None else
+             f"{delay['mean']:.0f} s mean, {delay['max']:.0f} s max"],
+            ["entry delay", "none entered" if entry["mean"] is None else
+             f"{entry['mean']:.0f} s mean, {entry['max']:.0f} s max"],
+            ["LoS per flight hour", f"{stream['los_per_flight_hour']:.3f} ({stream['los_count']} in "
+                                    f"{stream['flight_hours']:.0f} h)"],
+            ["max airborne", str(stream["max_airborne"])],
+        ]
     if "fallbacks" in summary:
         rows.append(["fallbacks", f"{summary['fallbacks']} of {summary['decisions']} decisions"])
     kept = [r.get("policy_info", {}).get("start_kept") for r in records]

@@ -473,6 +473,7 @@ class MCMCMPC:
         self._wind_estimate_kt = np.zeros(2)
         self._predicted_positions = None
         self._predicted_time_s = -1.0
+        self._predicted_flying = np.zeros(0, dtype=bool)
 
     def act(self, view: WorldView) -> np.ndarray:
         """The waypoints (N, 2), nm, of the lowest-cost candidate in the chain."""
@@ -550,6 +551,7 @@ class MCMCMPC:
         waypoints = view.waypoints.copy()
         waypoints[flying] = applied[flying]
         self._predicted_positions = applied_after_first.copy()
+        self._predicted_flying = flying.copy()
         self._predicted_time_s = view.time_s + s.period_s
         return waypoints
 
@@ -744,7 +746,9 @@ class MCMCMPC:
             return
         if not math.isclose(view.time_s, self._predicted_time_s, abs_tol=1e-6):
             return
-        flying = view.flying
+        # Only aircraft that flew the whole period were predicted: in a traffic stream an
+        # aircraft that entered since has no prediction to compare with.
+        flying = view.flying & self._predicted_flying
         if not flying.any():
             return
         error_nm = view.positions[flying] - self._predicted_positions[flying]

@@ -600,6 +600,14 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 4}
 
+    def __new__(cls, **kwargs: Any) -> Any:
+        # A traffic stream's env has other spaces (slot masks): ``StreamEnv``.
+        from atc_nf_env.envs.streams import StreamEnv, is_stream
+
+        if cls is EncounterEnv and is_stream(kwargs.get("scenario")):
+            return StreamEnv(**kwargs)
+        return super().__new__(cls)
+
     def __init__(self, **kwargs: Any) -> None:
         cfg = EnvConfig.from_kwargs(kwargs, "atc_nf_env/Encounter-v0")
         self.cfg = cfg

@@ -364,8 +364,14 @@ def _agent_action(agent: str, value: Any) -> np.ndarray:
     return array
 
 
-def parallel_env(**kwargs: Any) -> ATCParallelEnv:
-    """The PettingZoo ParallelEnv (see ``ATCParallelEnv`` for spaces, rewards, arguments)."""
+def parallel_env(**kwargs: Any) -> ParallelEnv:
+    """The PettingZoo ParallelEnv (see ``ATCParallelEnv`` for spaces, rewards, arguments);
+    of a traffic stream (``scenario="stream-R"``), ``StreamParallelEnv``, whose agents
+    join and leave (``atc_nf_env.envs.streams``)."""
+    from atc_nf_env.envs.streams import StreamParallelEnv, is_stream
+
+    if is_stream(kwargs.get("scenario")):
+        return StreamParallelEnv(**kwargs)
     return ATCParallelEnv(**kwargs)
 
 
@@ -510,7 +516,13 @@ class _OrderEnforcingWrapper(wrappers.OrderEnforcingWrapper):
 
 
 def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
-    """The AEC form (``raw_env`` in PettingZoo's ``OrderEnforcingWrapper``)."""
+    """The AEC form (``raw_env`` in PettingZoo's ``OrderEnforcingWrapper``); of a traffic
+    stream, PettingZoo's ``parallel_to_aec`` conversion of ``StreamParallelEnv``, which
+    handles agents that join."""
+    from atc_nf_env.envs.streams import StreamParallelEnv, is_stream
+
+    if is_stream(kwargs.get("scenario")):
+        return wrappers.OrderEnforcingWrapper(parallel_to_aec_wrapper(StreamParallelEnv(**kwargs)))
     return _OrderEnforcingWrapper(raw_env(**kwargs))
 
 

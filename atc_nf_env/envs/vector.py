@@ -290,6 +290,20 @@ class EncounterVectorEnv(VectorEnv):
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
+    def __new__(cls, num_envs: int = 1, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                **kwargs: Any) -> Any:
+        # A traffic stream: Gymnasium's SyncVectorEnv over ``StreamEnv`` (its dict
+        # observations with slot masks, batched); each world is stepped in its own call.
+        from atc_nf_env.envs.streams import StreamEnv, is_stream
+
+        if cls is EncounterVectorEnv and is_stream(kwargs.get("scenario")):
+            if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+                raise ValueError(f"atc_nf_env/Encounter-v0 (vector): num_envs = {num_envs!r}: must be an integer >= 1")
+            from gymnasium.vector import SyncVectorEnv
+
+            return SyncVectorEnv([lambda: StreamEnv(**kwargs)] * int(num_envs), autoreset_mode=autoreset_mode)
+        return super().__new__(cls)
+
     def __init__(self, num_envs: int = 1, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **kwargs: Any) -> None:
         cfg = EnvConfig.from_kwargs(kwargs, "atc_nf_env/Encounter-v0 (vector)")
         if cfg.render_mode is not None:
