@@ -32,6 +32,7 @@ from atc_nf_env.kernel import (
     S_DEST_Y,
     S_HEADING,
     S_STATUS,
+    S_TIME,
     S_WP_X,
     S_WP_Y,
     S_X,
@@ -335,7 +336,9 @@ def _screen(
         drift_y = 0.0
         count = 0
         for i in range(n):
-            if state[i, S_STATUS] == FLYING and predicted_alive[i]:
+            # Only an aircraft that flew the whole period was predicted: in a traffic stream a
+            # slot emptied by an arrival may hold a flight that entered at this instant.
+            if state[i, S_STATUS] == FLYING and predicted_alive[i] and state[i, S_TIME] >= period_s - 1e-6:
                 drift_x += state[i, S_X] - predicted[i, 0]
                 drift_y += state[i, S_Y] - predicted[i, 1]
                 count += 1
@@ -348,6 +351,8 @@ def _screen(
     for i in range(n):
         flying = state[i, S_STATUS] == FLYING
         any_flying |= flying
+        if not flying or state[i, S_TIME] < period_s - 1e-6:
+            homebound[i] = False  # a slot's hand-over ends with its flight (a stream reuses the slot)
         planned[0, i, 0] = proposal[i, 0] if flying else state[i, S_WP_X]
         planned[0, i, 1] = proposal[i, 1] if flying else state[i, S_WP_Y]
     if not any_flying:
@@ -371,7 +376,10 @@ def _screen(
                 # asking a fraction of what is left would let it close in geometrically
                 # and never arrive.
                 asked = min(progress_asked_nm, distances[0, i] - arrival_nm)
-                if (state[i, S_STATUS] == FLYING and not homebound[i]
+                # Judged only over a window the aircraft flew whole (time flown counts from
+                # its entry): a stream's slot may have held another flight at its start.
+                whole = state[i, S_TIME] >= history_time[rows - 1] - history_time[0] - 1e-6
+                if (state[i, S_STATUS] == FLYING and not homebound[i] and whole
                         and distances[rows - 1, i] > distances[0, i] - asked):
                     homebound[i] = True
                     counts[1] += 1

@@ -772,3 +772,45 @@ def test_reset_loads_every_compiled_entry_of_a_change():
     assert out.returncode == 0, out.stderr
     first_safe, alternatives = (int(x) for x in out.stdout.split())
     assert first_safe >= 1 and alternatives >= 1
+
+
+def test_a_slot_that_takes_a_new_flight_starts_with_a_clean_memory() -> None:
+    """In a traffic stream a slot emptied by an arrival takes the next flight (time flown 0):
+    the progress rule's hand-over ends with the old flight, the new one is judged only over
+    a window it flew whole, and its position is never read as the old one's drift (wind)."""
+    from atc_nf_env.config import SimConfig
+    from atc_nf_env.kernel import S_TIME, S_X
+    from atc_nf_env.shield_prediction import SCREEN_HOMED, DecisionMemory, PlanPredictor
+    from atc_nf_env.simulation import initial_state
+
+    scenario = make_scenario("converging-4")
+    params = SimConfig().to_params(scenario.workspace_radius_nm, stop_on_violation=True)
+    predictor = PlanPredictor(params, 60, 2, 130.0, 1.0, 300.0)
+    state = np.ascontiguousarray(initial_state(scenario, 1)[0])
+    proposal = np.ascontiguousarray(state[:, 8:10])  # aim home
+    periods = 3
+    for new_flight in (False, True):
+        memory = DecisionMemory(4, periods)
+        old = state.copy()
+        old[:, S_TIME] = 3600.0
+        # A full window in which slot 0 made no progress, and a prediction of where it would be.
+        for row in range(periods):
+            memory.history_time[row] = 2700.0 + 300.0 * row
+            memory.distances[row] = np.hypot(*(old[:, 8:10] - old[:, 0:2]).T)
+        memory.counts[0] = periods
+        memory.predicted[:] = old[:, 0:2]
+        memory.predicted_alive[:] = True
+        memory.timing[:] = (1.0, 3600.0)
+        now = old.copy()
+        if new_flight:
+            now[0, S_TIME] = 0.0  # slot 0: a flight that entered at this instant, 300 nm away
+            now[0, S_X] += 300.0
+        verdict = predictor.screen(now, proposal, 3600.0, 300.0, memory, 20.0, 5.0)
+        assert verdict == SCREEN_HOMED and memory.homebound[1:].all()  # the others made no progress
+        assert memory.homebound[0] == (not new_flight)
+        assert np.array_equal(memory.wind_kt, np.zeros(2))  # the others flew where predicted
+    # A slot handed over keeps its hand-over while its flight flies, and loses it with the flight.
+    memory.homebound[:] = True
+    now[0, S_TIME] = 0.0
+    predictor.screen(now, proposal, 3900.0, 300.0, memory, 20.0, 5.0)
+    assert not memory.homebound[0] and memory.homebound[1:].all()
