@@ -586,6 +586,7 @@ def test_first_safe_of_a_batch_is_the_first_candidate_safe_alone(scenario, seed,
 
 def _screen_setup(n_aircraft: int = 3, progress_periods: int = 2):
     from atc_nf_env.config import SimConfig
+    from atc_nf_env.kernel import S_TIME
     from atc_nf_env.shield_prediction import DecisionMemory, PlanPredictor
     from atc_nf_env.simulation import initial_state
 
@@ -594,6 +595,7 @@ def _screen_setup(n_aircraft: int = 3, progress_periods: int = 2):
     params = config.to_params(scenario.workspace_radius_nm, stop_on_violation=True)
     predictor = PlanPredictor(params, 60, 2, 130.0, np.pi / 3, 240.0)
     state = np.ascontiguousarray(initial_state(scenario)[0])
+    state[:, S_TIME] = 7200.0  # flown for longer than any window here, as a flight at these times would be
     to_dest = scenario.dest_xy - state[:, :2]
     proposal = state[:, :2] + 100.0 * to_dest / np.hypot(*to_dest.T)[:, None]
     return predictor, DecisionMemory(n_aircraft, progress_periods), state, np.ascontiguousarray(proposal)
@@ -655,7 +657,8 @@ def test_the_progress_rule_asks_its_share_far_out_and_arrival_close_in():
 
 class _PythonMemory:
     """The filter's wind estimate and progress rule as Python computed them before they moved
-    into ``PlanPredictor.screen`` (the reference ``screen`` must match bit for bit)."""
+    into ``PlanPredictor.screen`` (the reference ``screen`` must match bit for bit), with
+    the clean start of a stream slot's new flight."""
 
     def __init__(self, n: int, progress_periods: int, period_s: float, progress_nm: float,
                  arrival_nm: float = 0.0) -> None:
@@ -673,7 +676,7 @@ class _PythonMemory:
         """The old bookkeeping of one decision; returns whether an aircraft is handed over."""
         import math
 
-        from atc_nf_env.kernel import FLYING, S_DEST_X, S_DEST_Y, S_STATUS, S_X, S_Y
+        from atc_nf_env.kernel import FLYING, S_DEST_X, S_DEST_Y, S_STATUS, S_TIME, S_X, S_Y
 
         rows = state.tolist()
         flying = [row[S_STATUS] == FLYING for row in rows]
@@ -681,13 +684,16 @@ class _PythonMemory:
             dx = dy = 0.0
             count = 0
             for row, now, predicted, then in zip(rows, flying, self.predicted, self.predicted_flying):
-                if now and then:
+                if now and then and row[S_TIME] >= self.period_s - 1e-6:  # flew the whole period
                     dx += row[S_X] - predicted[0]
                     dy += row[S_Y] - predicted[1]
                     count += 1
             if count:
                 self.wind = self.wind + np.array([dx, dy]) / count / (self.period_s / 3600.0)
             self.predicted = None
+        for i, row in enumerate(rows):  # a hand-over ends with its flight (a stream reuses the slot)
+            if not flying[i] or row[S_TIME] < self.period_s - 1e-6:
+                self.homebound[i] = False
         if not any(flying):
             return False
         distances = [math.hypot(r[S_DEST_X] - r[S_X], r[S_DEST_Y] - r[S_Y]) for r in rows]
@@ -695,10 +701,11 @@ class _PythonMemory:
             self.history.clear()
         self.history.append((time_s, distances))
         if len(self.history) > self.progress_periods:
-            then = self.history.pop(0)[1]
+            then_time, then = self.history.pop(0)
             for i, (now, before) in enumerate(zip(distances, then)):
                 asked = min(self.progress, before - self.arrival)  # arrival asked within the ask of home
-                if flying[i] and not self.homebound[i] and now > before - asked:
+                whole = rows[i][S_TIME] >= time_s - then_time - 1e-6  # flew the whole window
+                if flying[i] and not self.homebound[i] and whole and now > before - asked:
                     self.homebound[i] = True
                     self.stalled += 1
         return any(bound and flying[i] for i, bound in enumerate(self.homebound))
@@ -715,10 +722,10 @@ class _PythonMemory:
 def test_the_compiled_screen_keeps_the_wind_estimate_and_progress_rule_of_the_python_reference(
     n, seed, progress_periods, gaps, asked
 ):
-    """Random decision sequences (aircraft wandering, arriving, decisions off the period
-    grid, predictions remembered or not): ``PlanPredictor.screen`` updates the wind estimate
+    """Random decision sequences (aircraft wandering, arriving, slots taking new flights,
+    decisions off the period grid, predictions remembered or not): ``PlanPredictor.screen`` updates the wind estimate
     and hands aircraft over exactly as the filter's former Python did."""
-    from atc_nf_env.kernel import ARRIVED, S_STATUS, S_X, S_Y
+    from atc_nf_env.kernel import ARRIVED, S_STATUS, S_TIME, S_X, S_Y
     from atc_nf_env.shield_prediction import SCREEN_HOMED, SCREEN_NONE_FLYING, SCREEN_SAFE, DecisionMemory
 
     predictor, _, state, proposal = _screen_setup(n_aircraft=n, progress_periods=progress_periods)
@@ -731,6 +738,8 @@ def test_the_compiled_screen_keeps_the_wind_estimate_and_progress_rule_of_the_py
         state[:, S_X] += rng.normal(0.0, 20.0, n)
         state[:, S_Y] += rng.normal(0.0, 20.0, n)
         state[rng.uniform(size=n) < 0.1, S_STATUS] = ARRIVED
+        state[:, S_TIME] += gap
+        state[rng.uniform(size=n) < 0.15, S_TIME] = rng.choice([0.0, 150.0, 600.0])  # a stream slot's new flight
         if rng.uniform() < 0.7:  # a prediction remembered for this decision (or another time)
             when = time_s if rng.uniform() < 0.8 else time_s + 1.0
             positions = state[:, S_X : S_Y + 1] + rng.normal(0.0, 2.0, (n, 2))
