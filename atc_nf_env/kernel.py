@@ -32,8 +32,8 @@ and θ_nh the angle of sgn(p_i) ∇_iΦ_i. The wind w enters the ground velocity
 constrains airspeed, and the NF never sees the wind.
 
 Guards against the law's singularities (each keeps a value finite that the law
-leaves undefined; none acts in an ordinary flight but guard 8's watch, which only flies
-some of its steps finer):
+leaves undefined; none acts in an ordinary flight but guard 8's watch and guard 10, which
+only fly some of its steps finer):
 
 1. |P_i| is floored at ``p_floor`` in the 1/P_i term: P_i = 0 when the heading is
    normal to the gradient, e.g. just after a waypoint switch.
@@ -142,9 +142,9 @@ some of its steps finer):
    before), 11 and 3 encounters over 0.2 nm (16 and 5 before); on seeds 881000+, which
    chose nothing, 16 and 5 over (21 and 7 before), 1 and 0 at the cap (10 and 0). The
    arrival times move by up to 4.9 and 15.4 min (3.8 and 15.2 before). The goal, every
-   move < 0.2 nm, is not met. Tolerances from 0.002 to 0.03 nm, or an estimate that looks ahead (the
-   commands at the end of an Euler predictor step, one more evaluation of the law) did no
-   better; the same estimate on every aircraft, unobstructed flight included, brought
+   move < 0.2 nm, is not met. Tolerances from 0.002 to 0.03 nm, or an estimate that looks
+   ahead (the commands at the end of an Euler predictor step, one more evaluation of the
+   law) did no better; the same estimate on every aircraft, unobstructed flight included, brought
    random-3 ... 8 close to converged only at 3e-5 nm and with θ̇_nh taken as it is in
    sub-steps (below), which left the converging encounters unconverged.
    What is left: within a refined step the θ̇_nh of (5b) is the backward difference over
