@@ -14,8 +14,11 @@ integration step (5 s) and at 0.625 s, in two families of encounters:
 Per family: the number of encounters, the largest and the 95th-percentile move of the
 episode's minimum separation between the two steps, the encounters where it moves by more
 than ``GOAL_NM`` (0.2 nm), the largest moves of an aircraft's arrival time and path length,
-and the encounters in which a command reached the airspeed cap at the default step. The
-cost of the integration is measured apart (``bench/bench_kernel.py``).
+and the encounters in which a command reached the airspeed cap at the default step; each
+with the kernel's guard 10 (sub-steps by the estimated error, ``SimConfig.step_error_nm``)
+and without it. Then the cost: the warm wall time per aircraft-step of the same episodes at
+the default step with and without guard 10, interleaved in rounds (``bench/bench_kernel.py``
+measures the kernel's throughput where no neighbour is in range, where guard 10 never acts).
 
 Run: python bench/integration_convergence_study.py [--seeds 30] [--write]
 """
@@ -85,8 +88,12 @@ class Flight:
     los: int
 
 
-def fly(scenario: Scenario, seed: int, dt_s: float) -> Flight:
-    config = SimConfig(dt_s=dt_s, **OVERRIDES)
+#: ``step_error_nm`` no estimate reaches: the kernel without guard 10, for comparison.
+GUARD_OFF_NM = 1e9
+
+
+def fly(scenario: Scenario, seed: int, dt_s: float, guard: bool = True) -> Flight:
+    config = SimConfig(dt_s=dt_s, **{**OVERRIDES, **({} if guard else {"step_error_nm": GUARD_OFF_NM})})
     m = run_episode(NFDirect(), scenario, seed=seed, wind_kt=np.zeros(2), config=config).metrics
     extremes = [abs(v) for v in (m.airspeed_min_kt, m.airspeed_max_kt) if v is not None]
     return Flight(
@@ -99,14 +106,14 @@ def fly(scenario: Scenario, seed: int, dt_s: float) -> Flight:
     )
 
 
-def family_row(label: str, make, seeds: range, verbose: bool) -> tuple[str, dict]:
+def family_row(label: str, make, seeds: range, verbose: bool, guard: bool = True) -> tuple[str, dict]:
     moves, time_moves, path_moves = [], [], []
     at_cap, los, not_home = 0, 0, 0
     worst = (0.0, None)
     for seed in seeds:
         scenario = make(seed)
-        coarse = fly(scenario, seed, COARSE_S)
-        fine = fly(scenario, seed, FINE_S)
+        coarse = fly(scenario, seed, COARSE_S, guard)
+        fine = fly(scenario, seed, FINE_S, guard)
         move = abs(coarse.min_separation_nm - fine.min_separation_nm)
         both = coarse.arrived & fine.arrived
         not_home += int(not both.all())
@@ -160,7 +167,7 @@ def cost_ratio(seeds: range, families) -> tuple[float, float, float]:
     reaches: the kernel before the guard), flown interleaved in rounds; and the median of
     the rounds' ratios (on / off)."""
     scenarios = [(make(seed), seed) for _, make in families for seed in seeds]
-    settings = {"on": SimConfig(**OVERRIDES), "off": SimConfig(**{**OVERRIDES, "step_error_nm": 1e9})}
+    settings = {"on": SimConfig(**OVERRIDES), "off": SimConfig(**{**OVERRIDES, "step_error_nm": GUARD_OFF_NM})}
     per_step: dict[str, list[float]] = {"on": [], "off": []}
     for _ in range(COST_ROUNDS):
         for name, config in settings.items():
@@ -195,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
         row, stats = family_row(label, make, seeds, args.verbose)
         rows.append(row)
         met &= stats["over"] == 0 and stats["at_cap"] == 0
+        rows.append(family_row(f"{label}, without guard 10", make, seeds, False, guard=False)[0])
     cost_on, cost_off, ratio = cost_ratio(seeds, families)
     config = SimConfig(**OVERRIDES)
     text = "\n".join(
@@ -204,8 +212,9 @@ def main(argv: list[str] | None = None) -> int:
             f"The NF alone (`NFDirect`) without wind, flown at dt = {COARSE_S:g} s and {FINE_S:g} s; moves between "
             "the two of the episode's minimum separation (largest, with its seed, and 95th percentile), of an "
             "aircraft's arrival time and of its path length (largest over the aircraft home in both), and the "
-            f"encounters with a command at the ±{config.airspeed_cap_kt:g} kt cap at {COARSE_S:g} s "
-            f"(error tolerance `SimConfig.step_error_nm` = {config.step_error_nm:g} nm).",
+            f"encounters with a command at the ±{config.airspeed_cap_kt:g} kt cap at {COARSE_S:g} s; "
+            f"with kernel guard 10 (error tolerance `SimConfig.step_error_nm` = {config.step_error_nm:g} nm) "
+            "and without it (the kernel before it).",
             "",
             "| family | seeds | largest move of min separation | p95 | over "
             f"{GOAL_NM:g} nm | arrival time | path length | at the cap (5 s) | LoS (both steps) | not all home |",
