@@ -59,10 +59,6 @@ class SimConfig:
             sub-steps (guard 8), so that the right-hand rule's ramp (from
             ``right_turn_from_kt``) is entered at the sub-step's resolution whatever dt is;
             half of ``right_turn_from_kt`` by default.
-        step_error_nm: tolerance, nm, of a step's estimated position error, dt/2 · |v_n −
-            v_(n−1)| (AB2 minus Euler), for aircraft with a neighbour in range (kernel guard
-            10): a step where it is exceeded is flown in ceil(estimate / step_error_nm)
-            sub-steps (at most ceil(dt_s / substep_s)).
         right_turn_deg: the right-hand rule at the law's singularity (kernel guard 9):
             where the 1/P_i term of (5a) exceeds ``right_turn_from_kt`` the desired
             heading θ_nh is turned to the right, by this angle, deg, once the term reaches
@@ -93,7 +89,6 @@ class SimConfig:
     dphi_dt_gain: float = 1.0
     substep_s: float = 0.1
     substep_from_kt: float = 50.0
-    step_error_nm: float = 0.01
     right_turn_deg: float = 90.0
     right_turn_from_kt: float = 100.0
     right_turn_full_kt: float = 400.0
@@ -106,7 +101,7 @@ class SimConfig:
         positive = (
             "k", "eps_nh", "length_scale_nm", "k_theta", "sensing_radius_nm", "barrier_nm", "f_cutoff",
             "arrival_tolerance_nm", "dt_s", "aircraft_radius_nm", "airspeed_cap_kt",
-            "p_floor", "grad_floor", "separation_min_nm", "substep_s", "substep_from_kt", "step_error_nm",
+            "p_floor", "grad_floor", "separation_min_nm", "substep_s", "substep_from_kt",
         )
         for name in positive:
             if getattr(self, name) <= 0:
@@ -189,7 +184,6 @@ class SimConfig:
         params[nf.P_DPHI_DT_GAIN] = self.dphi_dt_gain
         params[nf.P_SUBSTEP] = self.substep_s
         params[nf.P_SUBSTEP_FROM] = self.substep_from_kt
-        params[nf.P_STEP_ERROR] = self.step_error_nm
         params[nf.P_RIGHT_TURN] = math.radians(self.right_turn_deg)
         params[nf.P_RIGHT_TURN_FROM] = self.right_turn_from_kt
         params[nf.P_RIGHT_TURN_FULL] = self.right_turn_full_kt

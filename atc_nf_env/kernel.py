@@ -32,8 +32,8 @@ and θ_nh the angle of sgn(p_i) ∇_iΦ_i. The wind w enters the ground velocity
 constrains airspeed, and the NF never sees the wind.
 
 Guards against the law's singularities (each keeps a value finite that the law
-leaves undefined; none acts in an ordinary flight but guard 8's watch and guard 10, which
-only fly some of its steps finer):
+leaves undefined; none acts in an ordinary flight but guard 8's watch, which only flies
+some of its steps finer):
 
 1. |P_i| is floored at ``p_floor`` in the 1/P_i term: P_i = 0 when the heading is
    normal to the gradient, e.g. just after a waypoint switch.
@@ -68,6 +68,17 @@ only fly some of its steps finer):
    Where the world stops at this step anyway (``stop_on_violation`` and a command
    outside the envelope, as in the MPC's candidates) the step is not refined: its
    first sub-step has the same command and the same verdict.
+   A known defect: after a refined step's first sub-step, θ̇_nh (guard 5) is the
+   backward difference over a sub-step times n_sub twice over (the sub-steps' commands
+   take dt / n_sub as the step length and scale the last step's length by n_sub again),
+   so the heading's feed-forward there is n_sub = ceil(dt / ``substep_s``) times the
+   law's rate (50 at 5 s, 7 at 0.625 s), and depends on dt. Guard 9's rule was tuned
+   with it: taking the rate as it is made the NF alone at the converging saddle move
+   more on refining dt (``bench/integration_convergence_study.py``: perturbed
+   converging-3 ... 8, 22 of 30 encounters over 0.2 nm and 18 at the cap, against 5 and
+   1; random-3 ... 8 improved, 11 and 3 against 16 and 7). The same study measures the
+   NF alone on generic encounters, 5 s against 0.625 s: it is not converged at the
+   default step (BENCHMARKS.md).
 9. The right-hand rule at the saddle. Why sub-steps alone do not converge: the
    converging encounters are symmetric under reflection about each aircraft's radial
    line, and so is the law, so the exact flow keeps every aircraft on its line. There
@@ -124,36 +135,6 @@ only fly some of its steps finer):
    that spread; halving dt moves it by up to 0.21 nm on converging-3 ... 8 (< 0.2 nm
    but for converging-7), and the mean of an ensemble of perturbed starts by 0.13 nm
    (tables in BENCHMARKS.md).
-10. Sub-steps by the estimated error among neighbours. AB2 minus explicit Euler,
-   dt/2 (v_n − v_(n−1)), is a free estimate of a step's position error (Euler's leading
-   term, so a bound on AB2's). Where an aircraft with a neighbour in range (not fresh under
-   its waypoint) has an estimate e_i above ``step_error_nm`` (0.01 nm), the step is flown
-   in ceil(max e_i / ``step_error_nm``) explicit-Euler sub-steps (at most guard 8's count),
-   each with fresh commands; after a refined step the estimate scales the last sub-step's
-   velocity change by its number of sub-steps. The estimate looks back one step and costs
-   one loop over the aircraft. It acts only where a neighbour is in range, so a step that
-   the lane path or ``_ordinary_run`` flies (no neighbour in range) is never refined by it
-   and every path keeps the same rule; unobstructed cruise, whose AB2 error the step
-   study above bounds, is not refined.
-   Measured (``bench/integration_convergence_study.py``, NF alone without wind, 30 seeds
-   each of random-3 ... 8 and of converging-3 ... 8 with one start shifted 1e-6 nm, dt 5 s
-   against 0.625 s, seeds 880000+): no command at the cap at 5 s any more (7 and 1 of 30
-   before), the largest move of the minimum separation 1.13 and 0.27 nm (1.97 and 0.46 nm
-   before), 11 and 3 encounters over 0.2 nm (16 and 5 before); on seeds 881000+, which
-   chose nothing, 16 and 5 over (21 and 7 before), 1 and 0 at the cap (10 and 0). The
-   arrival times move by up to 4.9 and 15.4 min (3.8 and 15.2 before). The goal, every
-   move < 0.2 nm, is not met. Tolerances from 0.002 to 0.03 nm, or an estimate that looks
-   ahead (the commands at the end of an Euler predictor step, one more evaluation of the
-   law) did no better; the same estimate on every aircraft, unobstructed flight included, brought
-   random-3 ... 8 close to converged only at 3e-5 nm and with θ̇_nh taken as it is in
-   sub-steps (below), which left the converging encounters unconverged.
-   What is left: within a refined step the θ̇_nh of (5b) is the backward difference over
-   a sub-step, multiplied by the number of sub-steps once more (the later sub-steps'
-   commands take dt / n_sub as their step length, and the last step length is scaled by
-   n_sub again): the heading's feed-forward is n_sub times the rate in those sub-steps,
-   so its gain depends on dt. Taking the rate as it is (the law's θ̇_nh) made the
-   perturbed converging encounters move more (22 of 30 over 0.2 nm, 18 at the cap):
-   guard 9's rule was tuned with that gain, and needs retuning before the rate is fixed.
 
 An aircraft that arrives (its path passes within Δ of its destination, checked on
 every integration step's segment) or leaves is frozen and stops being an obstacle.
@@ -756,29 +737,6 @@ def _commit_aircraft_lanes(state: np.ndarray, command: np.ndarray, lanes: np.nda
         command[i, C_STEP_MAX] = lanes[A_U, k]
 
 
-@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
-def _error_substeps(state: np.ndarray, command: np.ndarray, wind_x: float, wind_y: float, params: np.ndarray,
-                    n_most: int) -> int:
-    """Sub-steps of this step by its estimated position error (guard 10): the largest over
-    the flying aircraft with a neighbour in range, not fresh under their waypoint, of
-    ceil(e_i / ``step_error_nm``), at most ``n_most``; 1 where no estimate exceeds the
-    tolerance. e_i = m dt/2 |v_n − v_(n−1)|, the difference between the AB2 and the Euler
-    step (v: ground velocity, kt; m: sub-steps of the last step, whose rates are m times
-    closer in time)."""
-    tol = params[nf.P_STEP_ERROR] * SECONDS_PER_HOUR / (0.5 * params[P_DT])  # in kt of |Δv| per last sub-step
-    worst = 0.0
-    for i in range(state.shape[0]):
-        if state[i, S_STATUS] != FLYING or command[i, C_NEAR] == 0.0 or state[i, S_FRESH] != 0.0:
-            continue
-        u = command[i, C_U]
-        dvx = u * command[i, C_COS] + wind_x - state[i, S_VX_PREV]
-        dvy = u * command[i, C_SIN] + wind_y - state[i, S_VY_PREV]
-        worst = max(worst, math.sqrt(dvx * dvx + dvy * dvy) * max(state[i, S_LAST_SUBSTEPS], 1.0))
-    if worst <= tol:
-        return 1
-    return min(n_most, int(math.ceil(worst / tol)))
-
-
 # Without reference counts (``nf.NO_REFERENCE_COUNTS``): it allocates nothing, and the counts
 # of the arrays it passes to its helpers took about a quarter of a one-world flight (the
 # helpers that take arrays are compiled without them too). The helpers are compiled on
@@ -863,8 +821,8 @@ def _advance_world(
         # converges as dt shrinks. Not where the world stops at this step anyway: its
         # first sub-step has the same command, outside the envelope.
         n_sub = 1
-        if not (stop_on_violation and outside):
-            n_sub = n_refined if refine else _error_substeps(state, command, wind_x, wind_y, params, n_refined)
+        if refine and not (stop_on_violation and outside):
+            n_sub = n_refined
         h = dt / n_sub
         nm_per_kt_step = h / SECONDS_PER_HOUR
         step_violation = False
@@ -1836,7 +1794,6 @@ _POSITIVE_PARAMS = {
     nf.P_P_FLOOR: "p_floor",
     nf.P_GRAD_FLOOR: "grad_floor",
     nf.P_SUBSTEP: "substep_s",
-    nf.P_STEP_ERROR: "step_error_nm",
 }
 
 _POSITIVE_INDEX = np.array(sorted(_POSITIVE_PARAMS))

@@ -14,11 +14,9 @@ integration step (5 s) and at 0.625 s, in two families of encounters:
 Per family: the number of encounters, the largest and the 95th-percentile move of the
 episode's minimum separation between the two steps, the encounters where it moves by more
 than ``GOAL_NM`` (0.2 nm), the largest moves of an aircraft's arrival time and path length,
-and the encounters in which a command reached the airspeed cap at the default step; each
-with the kernel's guard 10 (sub-steps by the estimated error, ``SimConfig.step_error_nm``)
-and without it. Then the cost: the warm wall time per aircraft-step of the same episodes at
-the default step with and without guard 10, interleaved in rounds (``bench/bench_kernel.py``
-measures the kernel's throughput where no neighbour is in range, where guard 10 never acts).
+and the encounters in which a command reached the airspeed cap at the default step.
+``--set FIELD=VALUE`` flies both steps with a ``SimConfig`` field changed (a setting of the
+integration to try).
 
 Run: python bench/integration_convergence_study.py [--seeds 30] [--write]
 """
@@ -32,7 +30,7 @@ import sys
 import time
 
 import numpy as np
-from _report import machine, publish  # bench/ is on sys.path when run as a script
+from _report import publish  # bench/ is on sys.path when run as a script
 
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import run_episode
@@ -49,7 +47,7 @@ AIRCRAFT = (3, 4, 5, 6, 7, 8)
 #: Shift of one aircraft's start in the perturbed converging encounters, nm.
 SHIFT_NM = 1e-6
 GOAL_NM = 0.2
-#: ``SimConfig`` fields changed from the defaults (``--step-error-nm``).
+#: ``SimConfig`` fields changed from the defaults (``--set``).
 OVERRIDES: dict[str, float] = {}
 
 
@@ -88,12 +86,8 @@ class Flight:
     los: int
 
 
-#: ``step_error_nm`` no estimate reaches: the kernel without guard 10, for comparison.
-GUARD_OFF_NM = 1e9
-
-
-def fly(scenario: Scenario, seed: int, dt_s: float, guard: bool = True) -> Flight:
-    config = SimConfig(dt_s=dt_s, **{**OVERRIDES, **({} if guard else {"step_error_nm": GUARD_OFF_NM})})
+def fly(scenario: Scenario, seed: int, dt_s: float) -> Flight:
+    config = SimConfig(dt_s=dt_s, **OVERRIDES)
     m = run_episode(NFDirect(), scenario, seed=seed, wind_kt=np.zeros(2), config=config).metrics
     extremes = [abs(v) for v in (m.airspeed_min_kt, m.airspeed_max_kt) if v is not None]
     return Flight(
@@ -106,14 +100,14 @@ def fly(scenario: Scenario, seed: int, dt_s: float, guard: bool = True) -> Fligh
     )
 
 
-def family_row(label: str, make, seeds: range, verbose: bool, guard: bool = True) -> tuple[str, dict]:
+def family_row(label: str, make, seeds: range, verbose: bool) -> tuple[str, dict]:
     moves, time_moves, path_moves = [], [], []
     at_cap, los, not_home = 0, 0, 0
     worst = (0.0, None)
     for seed in seeds:
         scenario = make(seed)
-        coarse = fly(scenario, seed, COARSE_S, guard)
-        fine = fly(scenario, seed, FINE_S, guard)
+        coarse = fly(scenario, seed, COARSE_S)
+        fine = fly(scenario, seed, FINE_S)
         move = abs(coarse.min_separation_nm - fine.min_separation_nm)
         both = coarse.arrived & fine.arrived
         not_home += int(not both.all())
@@ -157,43 +151,27 @@ def family_row(label: str, make, seeds: range, verbose: bool, guard: bool = True
     return row, stats
 
 
-#: Rounds of the cost measurement (interleaved: guard 10 on, off, on, off, ...).
-COST_ROUNDS = 3
-
-
-def cost_ratio(seeds: range, families) -> tuple[float, float, float]:
-    """Warm wall time per aircraft-step of the study's encounters at the default step, µs,
-    with guard 10 (the default ``step_error_nm``) and without it (a tolerance no estimate
-    reaches: the kernel before the guard), flown interleaved in rounds; and the median of
-    the rounds' ratios (on / off)."""
-    scenarios = [(make(seed), seed) for _, make in families for seed in seeds]
-    settings = {"on": SimConfig(**OVERRIDES), "off": SimConfig(**{**OVERRIDES, "step_error_nm": GUARD_OFF_NM})}
-    per_step: dict[str, list[float]] = {"on": [], "off": []}
-    for _ in range(COST_ROUNDS):
-        for name, config in settings.items():
-            wall, steps = 0.0, 0
-            for scenario, seed in scenarios:
-                m = run_episode(NFDirect(), scenario, seed=seed, wind_kt=np.zeros(2), config=config).metrics
-                wall += m.wall_s
-                steps += m.steps_flown
-            per_step[name].append(wall / steps * 1e6)
-    ratios = [on / off for on, off in zip(per_step["on"], per_step["off"])]
-    return float(np.median(per_step["on"])), float(np.median(per_step["off"])), float(np.median(ratios))
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=30, help="encounters per family (default 30)")
     parser.add_argument("--first-seed", type=int, default=FIRST_SEED, help=f"first seed (default {FIRST_SEED})")
     parser.add_argument("--family", choices=("random", "converging", "both"), default="both")
-    parser.add_argument("--step-error-nm", type=float, help="SimConfig.step_error_nm (default: the default's)")
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="FIELD=VALUE",
+        help="fly with a SimConfig field changed (repeatable), e.g. --set substep_s=0.05",
+    )
     parser.add_argument("--verbose", action="store_true", help="print each encounter's figures on stderr")
     parser.add_argument("--write", action="store_true", help="write the table into BENCHMARKS.md")
     args = parser.parse_args(argv)
     if args.seeds < 1:
         parser.error("--seeds must be >= 1")
-    if args.step_error_nm is not None:
-        OVERRIDES["step_error_nm"] = args.step_error_nm
+    for item in args.set:
+        field, _, value = item.partition("=")
+        try:
+            OVERRIDES[field] = float(value)
+            SimConfig(**OVERRIDES)
+        except (TypeError, ValueError) as error:
+            parser.error(f"--set {item!r}: {error}")
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     families = FAMILIES if args.family == "both" else FAMILIES[:1] if args.family == "random" else FAMILIES[1:]
     start = time.perf_counter()
@@ -202,8 +180,6 @@ def main(argv: list[str] | None = None) -> int:
         row, stats = family_row(label, make, seeds, args.verbose)
         rows.append(row)
         met &= stats["over"] == 0 and stats["at_cap"] == 0
-        rows.append(family_row(f"{label}, without guard 10", make, seeds, False, guard=False)[0])
-    cost_on, cost_off, ratio = cost_ratio(seeds, families)
     config = SimConfig(**OVERRIDES)
     text = "\n".join(
         [
@@ -212,22 +188,17 @@ def main(argv: list[str] | None = None) -> int:
             f"The NF alone (`NFDirect`) without wind, flown at dt = {COARSE_S:g} s and {FINE_S:g} s; moves between "
             "the two of the episode's minimum separation (largest, with its seed, and 95th percentile), of an "
             "aircraft's arrival time and of its path length (largest over the aircraft home in both), and the "
-            f"encounters with a command at the ±{config.airspeed_cap_kt:g} kt cap at {COARSE_S:g} s; "
-            f"with kernel guard 10 (error tolerance `SimConfig.step_error_nm` = {config.step_error_nm:g} nm) "
-            "and without it (the kernel before it).",
+            f"encounters with a command at the ±{config.airspeed_cap_kt:g} kt cap at {COARSE_S:g} s"
+            + (f" (settings changed: {OVERRIDES})" if OVERRIDES else "") + ".",
             "",
             "| family | seeds | largest move of min separation | p95 | over "
             f"{GOAL_NM:g} nm | arrival time | path length | at the cap (5 s) | LoS (both steps) | not all home |",
             "|---|---|---|---|---|---|---|---|---|---|",
             *rows,
             "",
-            f"Cost at the default step (the same encounters, warm, {COST_ROUNDS} rounds interleaved): "
-            f"{cost_on:.2f} µs per aircraft-step with guard 10, {cost_off:.2f} µs without it "
-            f"(ratio {ratio:.2f}; on {machine()}).",
-            "",
             f"Goal (every move < {GOAL_NM:g} nm, no command at the cap at the default step): "
             f"**{'met' if met else 'not met'}**. `python bench/integration_convergence_study.py --seeds {args.seeds}"
-            + (f" --step-error-nm {args.step_error_nm:g}" if args.step_error_nm is not None else "") + "`, "
+            + "".join(f" --set {item}" for item in args.set) + "`, "
             f"{time.perf_counter() - start:.0f} s.",
             "",
         ]
