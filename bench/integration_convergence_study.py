@@ -87,6 +87,7 @@ class Flight:
 
 
 def fly(scenario: Scenario, seed: int, dt_s: float) -> Flight:
+    """The NF alone flying ``scenario`` without wind at the step ``dt_s`` (s), with ``OVERRIDES``."""
     config = SimConfig(dt_s=dt_s, **OVERRIDES)
     m = run_episode(NFDirect(), scenario, seed=seed, wind_kt=np.zeros(2), config=config).metrics
     extremes = [abs(v) for v in (m.airspeed_min_kt, m.airspeed_max_kt) if v is not None]
@@ -101,6 +102,8 @@ def fly(scenario: Scenario, seed: int, dt_s: float) -> Flight:
 
 
 def family_row(label: str, make, seeds: range, verbose: bool) -> tuple[str, dict]:
+    """A family's row of the table and its figures: each seed's encounter ``make(seed)``
+    flown at both steps."""
     moves, time_moves, path_moves = [], [], []
     at_cap, los, not_home = 0, 0, 0
     worst = (0.0, None)
@@ -198,6 +201,8 @@ def main(argv: list[str] | None = None) -> int:
             "",
             f"Goal (every move < {GOAL_NM:g} nm, no command at the cap at the default step): "
             f"**{'met' if met else 'not met'}**. `python bench/integration_convergence_study.py --seeds {args.seeds}"
+            + (f" --first-seed {args.first_seed}" if args.first_seed != FIRST_SEED else "")
+            + (f" --family {args.family}" if args.family != "both" else "")
             + "".join(f" --set {item}" for item in args.set) + "`, "
             f"{time.perf_counter() - start:.0f} s.",
             "",
