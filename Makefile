@@ -94,6 +94,7 @@ bench: $(BIN)/atc-nf
 	$(BIN)/python bench/bench_compile.py --write
 	$(BIN)/python bench/integration_step_study.py --write
 	$(BIN)/python bench/substep_watch_study.py --write
+	$(BIN)/python bench/integration_convergence_study.py --write
 	$(BIN)/python bench/bench_mpc.py --write
 	$(BIN)/python bench/bench_envs.py --write
 	$(BIN)/python bench/bench_shield.py --write

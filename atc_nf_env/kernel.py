@@ -69,6 +69,17 @@ some of its steps finer):
    Where the world stops at this step anyway (``stop_on_violation`` and a command
    outside the envelope, as in the MPC's candidates) the step is not refined: its
    first sub-step has the same command and the same verdict.
+   A known defect: after a refined step's first sub-step, θ̇_nh (guard 5) is the
+   backward difference over a sub-step times n_sub twice over (the sub-steps' commands
+   take dt / n_sub as the step length and scale the last step's length by n_sub again),
+   so the heading's feed-forward there is n_sub = ceil(dt / ``substep_s``) times the
+   law's rate (50 at 5 s, 7 at 0.625 s), and depends on dt. Guard 9's rule was tuned
+   with it: taking the rate as it is made the NF alone at the converging saddle move
+   more on refining dt (``bench/integration_convergence_study.py``: perturbed
+   converging-3 ... 8, 22 of 30 encounters over 0.2 nm and 18 at the cap, against 5 and
+   1; random-3 ... 8 improved, 11 and 3 against 16 and 7). The same study measures the
+   NF alone on generic encounters, 5 s against 0.625 s: it is not converged at the
+   default step (BENCHMARKS.md).
 9. The right-hand rule at the saddle. Why sub-steps alone do not converge: the
    converging encounters are symmetric under reflection about each aircraft's radial
    line, and so is the law, so the exact flow keeps every aircraft on its line. There
