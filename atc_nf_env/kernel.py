@@ -11,8 +11,9 @@ paths (one world, a small batch, the lane path below) are compiled entries of th
 each compiled when a call first needs it.
 A batch of ``LANE_MIN_WORLDS`` worlds or more takes the lane path (see the section of that
 name below), and so does every batch, one world included, in a process where a policy that
-flies batches of every size (the MPC) called ``load_paths``: a world's ordinary steps, with no neighbour in range and no guard acting, are
-flown for chunks of worlds at once in SIMD lanes, its other steps by the scalar path, in the
+flies batches of every size (the MPC) called ``load_paths``. On it a world's ordinary steps,
+with no neighbour in range and no guard acting, are flown for chunks of worlds at once in
+SIMD lanes, its other steps by the scalar path, in the
 same arithmetic; a world flies bit for bit the same trajectory either way. On the scalar
 path (one world, small batches, the safety filter's prediction) the same ordinary steps
 are flown by ``_ordinary_run``, the lane step's arithmetic over the world's aircraft without
