@@ -2026,9 +2026,9 @@ def load_paths(world: np.ndarray, params: np.ndarray) -> None:
     decision.
 
     With the law's k = 2 (the paper's), the process flies every batch size on the lane
-    path from then on, one world included: one compiled path instead of three (the first
-    run's compilation is about half), at about the same speed (``bench/bench_kernel.py``),
-    and a world flies the same bits on every path. Otherwise it compiles the one-world and
+    path from then on, one world included: one compiled path instead of three
+    (``bench/bench_compile.py`` measures the first run's compilation), one world at about
+    the speed of its own path, and a world flies the same bits on every path. Otherwise it compiles the one-world and
     the batch paths. Paths already compiled in this process cost nothing."""
     global _notice_estimate_s, _lanes_for_every_size
     if params[nf.P_K] == 2.0:
