@@ -68,12 +68,17 @@ def plot_trajectories(result: EpisodeResult, path: str | Path, title: str | None
         ax.plot(records[last, i, R_X], records[last, i, R_Y], "s", color=color, ms=5, zorder=4)
     ax.plot([], [], "o", mfc="none", mec="k", ms=9, label="start")
     ax.plot([], [], "s", color="k", ms=5, label="end of track")
+    _finish_map(plt, fig, ax, path, title or episode_title(result, "trajectories", policy, wind_sigma_mps))
+
+
+def _finish_map(plt, fig, ax, path: str | Path, title: str) -> None:
+    """A plan view's axes (nm, equal scales), legend and title, saved to ``path`` and closed."""
     ax.set_aspect("equal")
     ax.set_xlabel("x (nm)")
     ax.set_ylabel("y (nm)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")
-    ax.set_title(title or episode_title(result, "trajectories", policy, wind_sigma_mps), fontsize=9)
+    ax.set_title(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -109,15 +114,7 @@ def plot_stream_trajectories(result: EpisodeResult, path: str | Path, title: str
             last = np.flatnonzero(rows)[-1]
             ax.plot(*xy[last], ".", color="k", ms=3, zorder=3)
     ax.plot([], [], ".", color="k", ms=5, label="end of track (arrival or end of episode)")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (nm)")
-    ax.set_ylabel("y (nm)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
-    ax.set_title(title or episode_title(result, "trajectories", policy, wind_sigma_mps), fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _finish_map(plt, fig, ax, path, title or episode_title(result, "trajectories", policy, wind_sigma_mps))
 
 
 def _moves_waypoints(result: EpisodeResult) -> bool:
