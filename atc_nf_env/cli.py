@@ -118,11 +118,22 @@ def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
                        help="lazy flies a candidate only as far as the chain needs; exhaustive flies all K over "
                             "the whole horizon and measures every decision's feasible fraction; both pick the "
                             "same waypoints (default: lazy)")
+    group.add_argument("--sampling", choices=("joint", "clusters"),
+                       help="joint samples every aircraft's waypoint; clusters, when the chain's start breaks a "
+                            "constraint, samples only the conflict cluster around the aircraft involved (for dense "
+                            "traffic; see docs/mpc.md) (default: joint)")
+    group.add_argument("--cluster-radius-nm", type=float,
+                       help="clusters: aircraft within this distance of one involved join its cluster (default: 30)")
+    group.add_argument("--progress-fraction", type=float,
+                       help="the progress rule: an aircraft closing less than this share of a direct flight's "
+                            "progress over --progress-periods periods is held on its recovery waypoint "
+                            "(default: off)")
+    group.add_argument("--progress-periods", type=_positive_int, help="the progress rule's window (default: 3)")
 
 
 def _policy_kwargs(args: argparse.Namespace) -> dict:
     names = ("extractions", "horizon", "wind_model", "constraint_check", "acceptance", "cost_exponent", "proposal",
-             "search")
+             "search", "sampling", "cluster_radius_nm", "progress_fraction", "progress_periods")
     kwargs = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
     if kwargs and args.policy != "mpc":
         raise ValueError(f"--{next(iter(kwargs)).replace('_', '-')} applies to --policy mpc only")

@@ -178,6 +178,7 @@ from atc_nf_env.kernel import (
 # re-exported here, where they were first defined.
 from atc_nf_env.proposals import homing_mixture_draws, inside_workspace
 from atc_nf_env.scenarios import Scenario
+from atc_nf_env.shield import APPROACH_RADIUS_NM, APPROACH_TURN_RAD
 from atc_nf_env.simulation import WorldView, initial_state
 from atc_nf_env.units import AIRSPEED_NOMINAL_KT, DECISION_PERIOD_S, KT_PER_MPS, SECONDS_PER_HOUR, WIND_SIGMA_MPS
 
@@ -186,6 +187,7 @@ PROPOSALS = ("homing", "paper")
 CONSTRAINT_CHECKS = ("every-step", "sampling-instants")
 ACCEPTANCES = ("standard", "table-i")
 SEARCHES = ("lazy", "exhaustive")
+SAMPLINGS = ("joint", "clusters")
 
 #: The default margin inside the airspeed envelope that "homing" predicts with, kt.
 HOMING_ENVELOPE_MARGIN_KT = 4.0
@@ -287,6 +289,10 @@ class MPCSettings:
     envelope_margin_kt: float | None = None
     first_decision_margin_kt: float | None = None
     search: str = "lazy"
+    sampling: str = "joint"
+    cluster_radius_nm: float = 30.0
+    progress_fraction: float | None = None
+    progress_periods: int = 3
 
     def __post_init__(self) -> None:
         if not isinstance(self.extractions, (int, np.integer)) or self.extractions < 1:
@@ -294,7 +300,8 @@ class MPCSettings:
         if not isinstance(self.horizon, (int, np.integer)) or self.horizon < 1:
             raise ValueError(f"horizon (N) = {self.horizon!r}: must be an integer >= 1")
         for name in (
-            "period_s", "distance_mean_nm", "distance_std_nm", "angle_range_rad", "cost_exponent", "home_distance_nm"
+            "period_s", "distance_mean_nm", "distance_std_nm", "angle_range_rad", "cost_exponent", "home_distance_nm",
+            "cluster_radius_nm",
         ):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -305,6 +312,13 @@ class MPCSettings:
             raise ValueError(f"recovery_fraction = {self.recovery_fraction!r}: must be a number in [0, 1]")
         if not (isinstance(self.recovery_angle_rad, (int, float)) and 0.0 < self.recovery_angle_rad < math.pi / 2):
             raise ValueError(f"recovery_angle_rad = {self.recovery_angle_rad!r}: must be a number in (0, π/2)")
+        if self.progress_fraction is not None and not (
+            isinstance(self.progress_fraction, (int, float)) and 0.0 < self.progress_fraction <= 1.0
+        ):
+            raise ValueError(f"progress_fraction = {self.progress_fraction!r}: must be None or a number in (0, 1]")
+        if (isinstance(self.progress_periods, bool) or not isinstance(self.progress_periods, (int, np.integer))
+                or not 1 <= self.progress_periods <= 100):
+            raise ValueError(f"progress_periods = {self.progress_periods!r}: must be an integer in [1, 100]")
         for name in ("envelope_margin_kt", "first_decision_margin_kt"):
             value = getattr(self, name)
             if value is not None and not (isinstance(value, (int, float)) and 0.0 <= value < 50.0):
@@ -317,9 +331,15 @@ class MPCSettings:
             ("wind_model", WIND_MODELS),
             ("proposal", PROPOSALS),
             ("search", SEARCHES),
+            ("sampling", SAMPLINGS),
         ):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: allowed: {', '.join(allowed)}")
+        if self.proposal == "paper" and (self.sampling != "joint" or self.progress_fraction is not None):
+            raise ValueError(
+                f"sampling = {self.sampling!r}, progress_fraction = {self.progress_fraction!r}: the conflict "
+                "clusters and the progress rule need proposal='homing' (proposal='paper' is Table I as printed)"
+            )
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
@@ -340,6 +360,11 @@ class DecisionRecord:
     chain_acceptance: float
     rounds: int = 1
     applied_breach_predicted: bool = False
+    #: Aircraft sampled by a conflict cluster's rounds (``sampling="clusters"``), 0 when the
+    #: decision sampled every aircraft jointly.
+    cluster_size: int = 0
+    #: Aircraft the progress rule held on their recovery waypoint at this decision.
+    recovering: int = 0
 
 
 def metropolis_hastings_best(
@@ -417,6 +442,11 @@ class MCMCMPC:
         self.decisions: list[DecisionRecord] = []
         self._rng = np.random.default_rng(0)
         self._scratch = kernel.KernelScratch()
+        # The chain's start is flown alone (``sampling="clusters"``): its own buffers, so that
+        # the candidates' batch shape keeps its own.
+        self._start_scratch = kernel.KernelScratch()
+        self._stalled = np.zeros(0, dtype=bool)
+        self._progress_history: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
         self._params: np.ndarray | None = None
         self._check_params: np.ndarray | None = None
         self._wind_estimate_kt = np.zeros(2)
@@ -474,6 +504,10 @@ class MCMCMPC:
         self._predicted_positions = None
         self._predicted_time_s = -1.0
         self._predicted_flying = np.zeros(0, dtype=bool)
+        self._stalled = np.zeros(scenario.n_aircraft, dtype=bool)
+        self._ever_stalled = np.zeros(scenario.n_aircraft, dtype=bool)
+        self._progress_history = []
+        self._arrival_nm = float(self._params[nf.P_DELTA])
 
     def act(self, view: WorldView) -> np.ndarray:
         """The waypoints (N, 2), nm, of the lowest-cost candidate in the chain."""
@@ -485,12 +519,22 @@ class MCMCMPC:
         self._config, self._params = self._prediction_models[0 if first else 1]
         self._update_wind_estimate(view)
         flying = view.flying
+        self._update_progress(view)
+        recovering = self._stalled & flying
         rounds = 1 + (s.search_rounds if s.proposal == "homing" else 0)
         tried: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         first_fraction: float | None = None
         chain: tuple[int, int] | None = None
-        for round_index in range(rounds):
-            proposals, log_g = self._propose(view, round_index)
+        # Which aircraft each round samples: all of them (joint), or, under "clusters" when the
+        # chain's start breaks a constraint, the conflict cluster around the aircraft involved.
+        cluster = self._start_cluster(view, recovering) if s.sampling == "clusters" else None
+        round_index = 0
+        attempts = 0
+        while round_index < rounds:
+            sampled = flying if cluster is None else cluster
+            if round_index == 0:
+                sampled = sampled & ~recovering  # held on their recovery waypoints (progress rule)
+            proposals, log_g = self._propose(view, round_index, flying & ~sampled)
             if s.search == "exhaustive":
                 costs, survived, after_first = self._simulate(view.state, proposals)
                 self.search_world_periods += s.extractions * s.horizon
@@ -509,11 +553,21 @@ class MCMCMPC:
                 self.search_world_periods += candidates.world_periods
                 costs, survived, after_first = candidates.costs, candidates.survived, candidates.after_first
                 feasible = candidates.done & np.isfinite(costs)
-            if round_index == 0 and (s.search == "exhaustive" or candidates.done.all()):
+            if attempts == 0 and (s.search == "exhaustive" or candidates.done.all()):
                 first_fraction = float(feasible.mean())
             tried.append((proposals, survived, after_first))
+            attempts += 1
             if any_feasible:
                 break
+            if cluster is not None and not cluster[flying].all():
+                # The cluster's rounds found nothing feasible: the violations of its longest
+                # survivor (other aircraft, revealed once the first conflict was resolved)
+                # grow the cluster before the search widens.
+                grown = cluster | self._violation_cluster(view, proposals[int(np.argmax(survived))])
+                if (grown & ~cluster).any():
+                    cluster = grown
+                    continue
+            round_index += 1
         uniforms = self._rng.random(s.extractions)
         breach_predicted = False
         if any_feasible:
@@ -546,6 +600,8 @@ class MCMCMPC:
                 chain_acceptance=accepted / max(s.extractions - 1, 1),
                 rounds=len(tried),
                 applied_breach_predicted=breach_predicted,
+                cluster_size=0 if cluster is None else int(cluster.sum()),
+                recovering=int(recovering.sum()),
             )
         )
         waypoints = view.waypoints.copy()
@@ -587,6 +643,13 @@ class MCMCMPC:
             if self.decisions
             else None,
             "wind_estimate_kt": [float(w) for w in self._wind_estimate_kt],
+            # sampling="clusters": decisions whose chain sampled a conflict cluster, its mean size.
+            "cluster_decisions": int(sum(d.cluster_size > 0 for d in self.decisions)),
+            "cluster_size_mean": float(np.mean([d.cluster_size for d in self.decisions if d.cluster_size > 0]))
+            if any(d.cluster_size > 0 for d in self.decisions) else None,
+            # The progress rule: aircraft it ever held on a recovery waypoint, and the decisions it did.
+            "stalled_aircraft": int(self._ever_stalled.sum()) if self._ever_stalled.size else 0,
+            "recovery_decisions": int(sum(d.recovering > 0 for d in self.decisions)),
         }
 
     # -- internals ----------------------------------------------------------------------
@@ -596,11 +659,15 @@ class MCMCMPC:
             return kernel.steps_for(self.settings.period_s, self._config.dt_s)
         return 1
 
-    def _propose(self, view: WorldView, round_index: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    def _propose(
+        self, view: WorldView, round_index: int = 0, held: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """K joint proposals (K, N, 2) nm and their log-densities log g (K,) up to a constant.
 
         ``round_index`` > 0 (proposal "homing" only): a wider search after a round in
-        which no candidate was feasible.
+        which no candidate was feasible. ``held`` (N,) bool ("homing" only): aircraft that
+        keep the chain's start's waypoint in every candidate (outside the sampled cluster,
+        or held by the progress rule); they add nothing to log g.
         """
         s = self.settings
         n = view.state.shape[0]
@@ -614,7 +681,7 @@ class MCMCMPC:
             z = (distance - s.distance_mean_nm) / s.distance_std_nm
             log_g = -0.5 * (z[:, flying] ** 2).sum(axis=1)
         else:
-            direction, distance, log_g = self._homing_draws(view, bearing, round_index)
+            direction, distance, log_g = self._homing_draws(view, bearing, round_index, held)
         proposals = view.positions[None] + distance[..., None] * np.stack(
             [np.cos(direction), np.sin(direction)], axis=-1
         )
@@ -622,7 +689,7 @@ class MCMCMPC:
         return inside_workspace(proposals, 0.99 * (self._workspace_radius_nm - self._config.aircraft_radius_nm)), log_g
 
     def _homing_draws(
-        self, view: WorldView, bearing: np.ndarray, round_index: int
+        self, view: WorldView, bearing: np.ndarray, round_index: int, held: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Directions (K, N) rad, distances (K, N) nm and log g (K,) of the "homing" proposal.
 
@@ -640,13 +707,12 @@ class MCMCMPC:
         f = 1.0 - (1.0 - s.recovery_fraction) / 2**round_index
         sigma = s.distance_std_nm * (1 + round_index)
         direction, distance = homing_mixture_draws(self._rng, s, heading, bearing, s.extractions, f, sigma)
-        # The initial state: aimed home, or as near home as a turn of recovery_angle allows
-        # (a waypoint far behind the heading would command a reverse airspeed).
-        home = heading + np.clip(_wrap(bearing - heading), -s.recovery_angle_rad, s.recovery_angle_rad)
-        if f == 0.0:
-            home = bearing  # outside the paper's support otherwise
+        home = self._start_directions(view, bearing, f)
         direction[0] = home
         distance[0] = s.home_distance_nm
+        if held is not None and held.any():
+            direction[:, held] = home[held]
+            distance[:, held] = s.home_distance_nm
         z = (distance - s.distance_mean_nm) / sigma
         from_bearing = np.abs(_wrap(direction - bearing[None, :])) <= s.angle_range_rad + 1e-12
         from_heading = np.abs(_wrap(direction - heading[None, :])) <= s.recovery_angle_rad + 1e-12
@@ -654,8 +720,124 @@ class MCMCMPC:
             2.0 * s.recovery_angle_rad
         )
         log_angle = np.log(np.maximum(density, 1e-300))
-        log_g = (-0.5 * z**2 + log_angle)[:, view.flying].sum(axis=1)
+        drawn = view.flying if held is None else view.flying & ~held
+        log_g = (-0.5 * z**2 + log_angle)[:, drawn].sum(axis=1)
         return direction, distance, log_g
+
+    def _start_directions(self, view: WorldView, bearing: np.ndarray, heading_share: float) -> np.ndarray:
+        """The directions (N,) rad of the chain's initial state's waypoints: aimed home, or as
+        near home as a turn of ``recovery_angle_rad`` allows (a waypoint far behind the
+        heading would command a reverse airspeed). An aircraft held by the progress rule
+        within ``APPROACH_RADIUS_NM`` of home and more than ``APPROACH_TURN_RAD`` off its
+        bearing flies straight on instead, as the safety filter's handed-over aircraft do
+        (``SafetyFilter._handover_waypoints`` says why: turned home from there it circles)."""
+        s = self.settings
+        heading = view.headings
+        if heading_share == 0.0:
+            return bearing.copy()  # outside the paper's support otherwise
+        error = _wrap(bearing - heading)
+        home = heading + np.clip(error, -s.recovery_angle_rad, s.recovery_angle_rad)
+        if self._stalled.any():
+            to_dest = view.destinations - view.positions
+            straight = (self._stalled & view.flying & (np.hypot(to_dest[:, 0], to_dest[:, 1]) < APPROACH_RADIUS_NM)
+                        & (np.abs(error) > APPROACH_TURN_RAD))
+            home = np.where(straight, heading, home)
+        return home
+
+    def _start_waypoints(self, view: WorldView) -> np.ndarray:
+        """The chain's initial state Θ_0 (N, 2) nm, as ``_propose`` makes its candidate 0."""
+        s = self.settings
+        to_dest = view.destinations - view.positions
+        bearing = np.arctan2(to_dest[:, 1], to_dest[:, 0])
+        home = self._start_directions(view, bearing, s.recovery_fraction)
+        start = view.positions + s.home_distance_nm * np.stack([np.cos(home), np.sin(home)], axis=-1)
+        return inside_workspace(start[None], 0.99 * (self._workspace_radius_nm - self._config.aircraft_radius_nm))[0]
+
+    def _violation_cluster(self, view: WorldView, waypoints: np.ndarray) -> np.ndarray:
+        """(N,) bool: the flying aircraft within ``cluster_radius_nm`` of an aircraft involved
+        in the first violation (the envelope, or a loss of separation) of ``waypoints`` (N, 2)
+        nm flown alone over the horizon under the prediction, where they were when it
+        stopped; none when it stays feasible."""
+        s = self.settings
+        assert self._params is not None and self._config is not None
+        states, flown_waypoints = _candidate_starts(view.state, waypoints[None])
+        wind = self._prediction_wind_of_one()
+        flying0 = view.flying
+        for _ in range(s.horizon):
+            before = states[:, :, S_X : S_Y + 1].copy()
+            trace = kernel.advance(states, flown_waypoints, wind, s.period_s, self._params, scratch=self._start_scratch)
+            newly_bad, _ = self._period_verdict(states, trace, np.ones(1, dtype=bool))
+            if newly_bad[0]:
+                involved = self._involved(states[0], trace)
+                where = states[0, :, S_X : S_Y + 1]
+                gap = np.hypot(*(where[:, None, :] - where[None, involved, :]).transpose(2, 0, 1))
+                near = (gap <= s.cluster_radius_nm).any(axis=1) if involved.any() else np.zeros_like(flying0)
+                return flying0 & (near | involved)
+            flown_waypoints = flown_waypoints + (states[:, :, S_X : S_Y + 1] - before)
+        return np.zeros_like(flying0)
+
+    def _involved(self, state: np.ndarray, trace: kernel.Trace) -> np.ndarray:
+        """(N,) bool: the aircraft of one world (N, N_STATE) that broke a constraint in the
+        period ``trace`` (of that world alone) records."""
+        config = self._config
+        assert config is not None
+        if self.settings.constraint_check == "every-step":
+            outside = (trace.min_airspeed_kt[0] < config.airspeed_min_kt) | (
+                trace.max_airspeed_kt[0] > config.airspeed_max_kt)
+            pairs = trace.los_pairs[0] > 0
+        else:
+            flying = state[:, S_STATUS] == FLYING
+            airspeed = state[:, S_AIRSPEED]
+            outside = flying & ((airspeed < config.airspeed_min_kt) | (airspeed > config.airspeed_max_kt))
+            where = state[:, S_X : S_Y + 1]
+            gap2 = ((where[:, None, :] - where[None, :, :]) ** 2).sum(-1)
+            pairs = (gap2 < config.separation_min_nm**2) & flying[:, None] & flying[None, :]
+            np.fill_diagonal(pairs, False)
+        return outside | pairs.any(axis=0) | pairs.any(axis=1)
+
+    def _start_cluster(self, view: WorldView, recovering: np.ndarray) -> np.ndarray | None:
+        """``sampling="clusters"``: None (sample every aircraft, as "joint") when the chain's
+        start is feasible; otherwise the conflict cluster of its first violation."""
+        cluster = self._violation_cluster(view, self._start_waypoints(view))
+        return cluster if cluster.any() else None
+
+    def _prediction_wind_of_one(self) -> np.ndarray:
+        """The wind (1, 2) kt of a lone prediction: the estimate under "estimated", still air
+        otherwise (a "sampled" wind would draw from the candidates' random stream)."""
+        if self.settings.wind_model == "estimated":
+            return self._wind_estimate_kt[None].copy()
+        return np.zeros((1, 2))
+
+    def _update_progress(self, view: WorldView) -> None:
+        """The progress rule (``progress_fraction``): an aircraft that closed less than that
+        share of a direct flight's progress (at the nominal airspeed, or what was left of its
+        distance beyond the arrival tolerance) over the last ``progress_periods`` periods it
+        flew whole is held on its recovery waypoint (``_start_directions``) until it stops
+        flying; in a traffic stream a slot's next flight starts unheld."""
+        s = self.settings
+        if s.progress_fraction is None:
+            return
+        flying = view.flying
+        to_dest = view.destinations - view.positions
+        distance = np.hypot(to_dest[:, 0], to_dest[:, 1])
+        flown_s = view.state[:, S_TIME].copy()
+        if self._progress_history:
+            _, _, last_flown, last_flying = self._progress_history[-1]
+            new_flight = flying & (~last_flying | (flown_s < last_flown))
+            self._stalled &= ~new_flight
+        self._stalled &= flying
+        window_s = s.progress_periods * s.period_s
+        for time_s, then_distance, then_flown, then_flying in self._progress_history:
+            if not math.isclose(view.time_s - time_s, window_s, abs_tol=1e-6):
+                continue
+            whole = flying & then_flying & np.isclose(flown_s - then_flown, window_s, atol=1e-6)
+            asked = s.progress_fraction * np.minimum(
+                AIRSPEED_NOMINAL_KT * window_s / SECONDS_PER_HOUR, np.maximum(then_distance - self._arrival_nm, 0.0))
+            stalled = whole & (then_distance - distance < asked)
+            self._stalled |= stalled
+            self._ever_stalled |= stalled
+        self._progress_history.append((view.time_s, distance, flown_s, flying.copy()))
+        del self._progress_history[: -s.progress_periods]
 
     def _prediction_wind(self) -> np.ndarray:
         s = self.settings

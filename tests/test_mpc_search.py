@@ -43,6 +43,11 @@ CASES = {
     "K = 1": (lambda: converging(3), 0, dict(extractions=1), dict(max_time_s=1800.0)),
     "K = 2, horizon 1": (lambda: converging(3), 0, dict(extractions=2, horizon=1), dict(max_time_s=1800.0)),
     "horizon 6": (lambda: converging(3), 2, dict(extractions=100, horizon=6), {}),
+    # Conflict clusters (rounds that grow a cluster) and the progress rule.
+    "clusters": (
+        lambda: converging(6), 1,
+        dict(extractions=300, sampling="clusters", progress_fraction=0.9, progress_periods=1), {},
+    ),
 }
 
 
@@ -114,6 +119,8 @@ def test_lazy_search_flies_the_exhaustive_episode_bit_for_bit(case, chains):
         assert any(d.chain_acceptance > 0.05 and d.feasible_fraction is None for d in lazy.decisions)
     if case == "wider rounds":
         assert info_b["rescued_by_wider_search"] >= 1 and info_b["fallbacks"] == 0
+    if case == "clusters":
+        assert info_b["cluster_decisions"] >= 1 and info_b["recovery_decisions"] >= 1
     if case == "fallbacks":
         assert info_b["fallbacks"] >= 1 and info_b["rescued_by_wider_search"] >= 1
 

@@ -1,0 +1,153 @@
+"""The MCMC-MPC in dense traffic, per run: the joint sampler against conflict clusters.
+
+Flies ``baselines.MCMCMPC`` on converging-N and random-N encounters of many aircraft
+(σ = 5.17 m/s, the evaluator's 4-h limit) in two settings:
+
+- ``joint``: the defaults (every decision samples every aircraft's waypoint jointly);
+- ``dense``: ``sampling="clusters"`` (when the chain's start breaks a constraint, the
+  chain samples only the conflict cluster around the aircraft involved, the others keep
+  their start) and the progress rule (``progress_fraction=0.5``, ``progress_periods=6``:
+  an aircraft that closed less than half a direct flight's progress over 30 min is held
+  on its recovery waypoint).
+
+Per row: runs; runs with every aircraft home; runs with a loss of separation; runs with
+any integration step outside [366, 540] kt and the worst excursion; runs with a fallback
+(a decision without a feasible candidate) and the fallbacks in all; runs in which an
+aircraft flew more than 1.5× its direct distance, and the largest such ratio; the mean
+and 99th-percentile decision time (warm), and the mean's ratio to the same setting's on
+converging-4 measured in the same run; the seeds that failed any of these.
+
+Run: python bench/mpc_dense_study.py --scenarios converging-12,converging-16,random-12,random-16 --runs 20
+     (--write puts the table into BENCHMARKS.md; --workers W flies runs in W processes, which
+     makes the decision times those of W processes sharing the machine)
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+#: The settings compared, by name: keyword arguments of ``baselines.MCMCMPC``.
+SETTINGS = {
+    "joint": {},
+    "dense": {"sampling": "clusters", "progress_fraction": 0.5, "progress_periods": 6},
+}
+#: A run fails the detour goal when an aircraft flies more than this times its direct distance.
+DETOUR_LIMIT = 1.5
+#: The reference of the decision-time ratio.
+REFERENCE_SCENARIO = "converging-4"
+
+
+def fly(setting: str, scenario_name: str, seed: int) -> dict:
+    """One run: its per-run outcomes and decision times (s)."""
+    from atc_nf_env.episode import run_episode, scenario_for_seed
+    from baselines.mcmc_mpc import MCMCMPC
+
+    policy = MCMCMPC(**SETTINGS[setting])
+    scenario = scenario_for_seed(scenario_name, seed)
+    result = run_episode(policy, scenario, seed=seed)
+    metrics = result.metrics
+    direct = np.hypot(*(scenario.dest_xy - scenario.start_xy).T)
+    detour = float((np.asarray(metrics.path_length_nm) / direct).max())
+    return {
+        "seed": seed,
+        "home": bool(all(metrics.arrived)),
+        "los": metrics.los_count > 0,
+        "excursion": float(metrics.worst_excursion_kt),
+        "fallbacks": int(policy.episode_info()["fallbacks"]),
+        "detour": detour,
+        "decision_s": [float(t) for t in result.decision_s],
+    }
+
+
+def _fly_packed(job: tuple[str, str, int]) -> dict:
+    return fly(*job)
+
+
+def study(setting: str, scenario_name: str, seeds: range, workers: int) -> dict:
+    """Per-run outcomes of ``setting`` on ``scenario_name`` over ``seeds``."""
+    jobs = [(setting, scenario_name, seed) for seed in seeds]
+    if workers > 1:
+        with ProcessPoolExecutor(workers) as pool:
+            runs = list(pool.map(_fly_packed, jobs))
+    else:
+        runs = [fly(*job) for job in jobs]
+    decisions = np.concatenate([r["decision_s"] for r in runs])
+    failed = [r["seed"] for r in runs
+              if not r["home"] or r["los"] or r["excursion"] > 0 or r["fallbacks"] or r["detour"] > DETOUR_LIMIT]
+    return {
+        "runs": len(runs),
+        "home": sum(r["home"] for r in runs),
+        "los": sum(r["los"] for r in runs),
+        "outside": sum(r["excursion"] > 0 for r in runs),
+        "worst": max(r["excursion"] for r in runs),
+        "fallback_runs": sum(r["fallbacks"] > 0 for r in runs),
+        "fallbacks": sum(r["fallbacks"] for r in runs),
+        "detour_runs": sum(r["detour"] > DETOUR_LIMIT for r in runs),
+        "detour_max": max(r["detour"] for r in runs),
+        "decision_mean_ms": 1e3 * float(decisions.mean()),
+        "decision_p99_ms": 1e3 * float(np.percentile(decisions, 99)),
+        "failed": failed,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    from _report import publish  # bench/ is on sys.path when run as a script
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--settings", default=",".join(SETTINGS), help=f"of {', '.join(SETTINGS)}")
+    parser.add_argument("--scenarios", default="converging-12,converging-16,random-12,random-16")
+    parser.add_argument("--runs", type=int, default=20)
+    parser.add_argument("--first-seed", type=int, default=1_100_000,
+                        help="seeds first-seed .. first-seed + runs - 1 (default: seeds no development run used)")
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--write", action="store_true", help="write the table into BENCHMARKS.md")
+    args = parser.parse_args(argv)
+    settings = [s for s in args.settings.split(",") if s]
+    unknown = sorted(set(settings) - set(SETTINGS))
+    if unknown:
+        parser.error(f"--settings {','.join(unknown)}: allowed: {', '.join(SETTINGS)}")
+    if args.runs < 1 or args.workers < 1 or args.first_seed < 0:
+        parser.error("--runs and --workers must be >= 1, --first-seed >= 0")
+    seeds = range(args.first_seed, args.first_seed + args.runs)
+    rows = [
+        "| setting | scenario | runs | every aircraft home | runs with LoS | runs outside envelope (worst kt) "
+        f"| runs with a fallback (fallbacks) | runs with a path > {DETOUR_LIMIT}× direct (largest) "
+        f"| decision mean / p99 (ms) | mean ÷ {REFERENCE_SCENARIO}'s | seeds failing any |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for setting in settings:
+        reference = study(setting, REFERENCE_SCENARIO, seeds, args.workers)
+        for scenario in [REFERENCE_SCENARIO] + [s for s in args.scenarios.split(",") if s]:
+            r = reference if scenario == REFERENCE_SCENARIO else study(setting, scenario, seeds, args.workers)
+            failed = " ".join(map(str, r["failed"][:8])) + (" …" if len(r["failed"]) > 8 else "")
+            rows.append(
+                f"| {setting} | {scenario} | {r['runs']} | {r['home']} | {r['los']} | {r['outside']} ({r['worst']:.0f}) "
+                f"| {r['fallback_runs']} ({r['fallbacks']}) | {r['detour_runs']} ({r['detour_max']:.2f}) "
+                f"| {r['decision_mean_ms']:.1f} / {r['decision_p99_ms']:.0f} "
+                f"| {r['decision_mean_ms'] / reference['decision_mean_ms']:.1f} | {failed or '—'} |"
+            )
+            print(rows[-1], flush=True)
+    command = (f"python bench/mpc_dense_study.py --settings {','.join(settings)} --scenarios {args.scenarios} "
+               f"--runs {args.runs} --first-seed {args.first_seed} --workers {args.workers}")
+    described = "; ".join(f"{name}: {', '.join(f'{k}={v!r}' for k, v in SETTINGS[name].items()) or 'the defaults'}"
+                          for name in settings)
+    text = "\n".join([
+        "## MCMC-MPC in dense traffic",
+        "",
+        f"`{command}` — `baselines.MCMCMPC` ({described}), seeds {seeds.start}–{seeds.stop - 1}, σ = 5.17 m/s, "
+        "4-h limit; outcomes per run (outside the envelope: any integration step outside [366, 540] kt; a "
+        "fallback: a decision without a feasible candidate). Decision times warm, in this run.",
+        "",
+        *rows,
+    ])
+    return publish("mpc-dense", text, args.write)
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    sys.exit(main())

@@ -1,0 +1,147 @@
+"""The MCMC-MPC's settings for dense traffic: conflict clusters and the progress rule.
+
+``sampling="clusters"``: when the chain's start breaks a constraint, a decision samples
+only the conflict cluster around the aircraft involved; the others keep their start.
+``progress_fraction``: an aircraft that stops closing on its destination is held on its
+recovery waypoint (never a silent circle).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from atc_nf_env.config import SimConfig
+from atc_nf_env.episode import run_episode
+from atc_nf_env.scenarios import Scenario, converging
+from atc_nf_env.kernel import ARRIVED, S_STATUS, S_TIME
+from atc_nf_env.simulation import Simulation, WorldView
+from baselines import MCMCMPC
+
+
+def _circling() -> Scenario:
+    """One aircraft 25 nm from its destination, heading 130° off the bearing to it."""
+    return Scenario(name="circling", start_xy=[[25.0, 0.0]], start_heading=[math.pi + math.radians(130.0)],
+                    dest_xy=[[0.0, 0.0]], dest_heading=[math.pi])
+
+
+def _two_groups() -> Scenario:
+    """Aircraft 0 and 1 head-on 120 nm apart; aircraft 2 and 3, 150 nm away, side by side
+    30 nm apart on parallel tracks: only the first pair conflicts."""
+    return Scenario(
+        name="two-groups",
+        start_xy=[[-60.0, 0.0], [60.0, 0.0], [0.0, 150.0], [30.0, 150.0]],
+        start_heading=[0.0, math.pi, math.pi / 2, math.pi / 2],
+        dest_xy=[[200.0, 0.0], [-200.0, 0.0], [0.0, 240.0], [30.0, 240.0]],
+        dest_heading=[0.0, math.pi, math.pi / 2, math.pi / 2],
+    )
+
+
+def test_the_progress_rule_brings_home_an_aircraft_that_circles_its_destination():
+    # Without the rule the chain keeps it circling 10-40 nm out (the cost rewards staying
+    # close within the horizon): on this seed it is still flying after 3 h.
+    plain = MCMCMPC(extractions=300)
+    m = run_episode(plain, _circling(), seed=1, max_time_s=3 * 3600.0).metrics
+    assert not m.arrived[0] and m.flight_time_min[0] == 180.0
+    for seed in range(3):
+        ruled = MCMCMPC(extractions=300, progress_fraction=0.5)
+        m = run_episode(ruled, _circling(), seed=seed, max_time_s=3 * 3600.0).metrics
+        assert m.arrived[0] and m.flight_time_min[0] < 60.0
+        assert 366.0 <= m.airspeed_min_kt <= m.airspeed_max_kt <= 540.0 and m.los_count == 0
+        info = ruled.episode_info()
+        assert info["stalled_aircraft"] == 1 and info["recovery_decisions"] >= 1 and info["fallbacks"] == 0
+
+
+def test_clusters_sample_only_the_conflict_and_keep_the_others_on_their_start():
+    scenario = _two_groups()
+    chosen = {}
+    for sampling in ("joint", "clusters"):
+        policy = MCMCMPC(extractions=300, sampling=sampling)
+        policy.reset(scenario, SimConfig(), seed=0)
+        view = Simulation(scenario).view()
+        chosen[sampling] = (policy.act(view), policy.decisions[-1], policy._start_waypoints(view))
+    waypoints, decision, start = chosen["clusters"]
+    assert decision.cluster_size == 2 and not decision.fallback and decision.rounds == 1
+    np.testing.assert_array_equal(waypoints[2:], start[2:])  # the pair without conflict flies its start
+    assert not np.array_equal(waypoints[:2], start[:2])
+    joint_waypoints, joint_decision, _ = chosen["joint"]
+    assert joint_decision.cluster_size == 0 and not np.array_equal(joint_waypoints[2:], start[2:])
+    # Sampling the conflict alone reaches a lower cost than sampling all four jointly.
+    assert decision.cost_nm < joint_decision.cost_nm
+
+
+def test_clusters_decide_as_the_joint_sampler_while_the_start_is_feasible():
+    results = {}
+    for sampling in ("joint", "clusters"):
+        policy = MCMCMPC(extractions=300, sampling=sampling)
+        results[sampling] = (policy, run_episode(policy, converging(4), seed=0))
+    clusters = results["clusters"][0].decisions
+    first = next((k for k, d in enumerate(clusters) if d.cluster_size > 0), len(clusters))
+    assert first >= 1
+    np.testing.assert_array_equal(results["joint"][1].waypoints[:first], results["clusters"][1].waypoints[:first])
+
+
+def test_dense_settings_fly_the_same_episode_twice():
+    settings = dict(extractions=200, sampling="clusters", progress_fraction=0.5, progress_periods=2)
+    a, b = (run_episode(MCMCMPC(**settings), converging(6), seed=1, record_every=1) for _ in range(2))
+    np.testing.assert_array_equal(a.records, b.records)
+    np.testing.assert_array_equal(a.waypoints, b.waypoints)
+
+
+def test_dense_settings_fly_a_traffic_stream():
+    policy = MCMCMPC(extractions=50, sampling="clusters", progress_fraction=0.5, progress_periods=2)
+    result = run_episode(policy, "stream-60-60min", seed=2)
+    stream = result.metrics.stream
+    assert stream is not None and stream["flights_entered"] > 3
+    assert len(policy.decisions) == result.metrics.decisions
+
+
+def test_the_progress_rule_judges_a_slot_only_over_a_window_its_flight_flew_whole():
+    """An aircraft held by the rule is released when its slot takes a new flight (its time
+    flown starts again), and the new flight is judged only once it has flown a window."""
+    scenario = converging(3)
+    policy = MCMCMPC(extractions=10, progress_fraction=0.5, progress_periods=2)
+    policy.reset(scenario, SimConfig(), seed=0)
+    view = Simulation(scenario).view()
+    period = policy.settings.period_s
+    state = view.state.copy()
+    for k in range(3):  # nobody moves for two periods: every aircraft is held
+        state[:, S_TIME] = k * period
+        policy._update_progress(WorldView(time_s=k * period, state=state.copy(), scenario=scenario))
+    assert policy._stalled.all() and policy._ever_stalled.all()
+    # Slot 0 takes a new flight (its time flown starts again at 0): released, and not
+    # judged over the two periods before it, although it does not move either.
+    for k in range(3, 5):
+        state[:, S_TIME] = k * period
+        state[0, S_TIME] = (k - 3) * period
+        policy._update_progress(WorldView(time_s=k * period, state=state.copy(), scenario=scenario))
+        assert not policy._stalled[0] and policy._stalled[1:].all()
+    state[:, S_TIME] = 5 * period
+    state[0, S_TIME] = 2 * period
+    policy._update_progress(WorldView(time_s=5 * period, state=state.copy(), scenario=scenario))
+    assert policy._stalled[0]  # now it has flown a whole window without progress
+    # An aircraft that no longer flies is released.
+    state[1, S_STATUS] = ARRIVED
+    policy._update_progress(WorldView(time_s=6 * period, state=state.copy(), scenario=scenario))
+    assert not policy._stalled[1]
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"sampling": "pairs"}, "sampling"),
+        ({"cluster_radius_nm": 0.0}, "cluster_radius_nm"),
+        ({"cluster_radius_nm": math.inf}, "cluster_radius_nm"),
+        ({"progress_fraction": 0.0}, "progress_fraction"),
+        ({"progress_fraction": 1.5}, "progress_fraction"),
+        ({"progress_periods": 0}, "progress_periods"),
+        ({"progress_periods": 2.5}, "progress_periods"),
+        ({"proposal": "paper", "sampling": "clusters"}, "proposal='homing'"),
+        ({"proposal": "paper", "progress_fraction": 0.5}, "proposal='homing'"),
+    ],
+)
+def test_bad_dense_settings_are_clear_errors(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        MCMCMPC(**kwargs)
