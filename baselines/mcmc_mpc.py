@@ -133,6 +133,37 @@ flown (in practice, a round without a feasible candidate); ``search="exhaustive"
 all K over the whole horizon and reports it for every decision
 (``DecisionRecord.feasible_fraction`` is None otherwise).
 
+Dense traffic (opt-in)
+----------------------
+Two settings for many aircraft, off by default (the defaults above fly bit for bit as
+without them):
+
+* ``sampling="clusters"``. Joint sampling draws every aircraft's angle in every
+  candidate, so beyond about ten aircraft few joint candidates are feasible where
+  conflicts meet, and a fallback is flown. Here the chain's start Θ_0 is flown alone
+  first. If it is feasible, the decision is the joint one. Otherwise the aircraft
+  involved in its first violation (out of the prediction's envelope, or in a loss of
+  separation) and every flying aircraft within ``cluster_radius_nm`` of one of them,
+  where they are when it happens, form a cluster; the K candidates draw only the
+  cluster's waypoints and the other aircraft keep Θ_0's. Every candidate is still flown
+  with every aircraft, so feasibility is the joint prediction's, and candidate 0 is Θ_0,
+  so the chain is Table I's over the cluster's coordinates. A round without a feasible
+  candidate grows the cluster by the violations of its longest survivor (another
+  conflict, met once the first is resolved) and runs again at the same width; only a
+  round whose cluster cannot grow leads to the next, wider round.
+* The progress rule (``progress_fraction``, ``progress_periods``). The cost looks one
+  horizon (20 min) ahead, so an aircraft that overshot near its destination can be kept
+  circling it: every candidate that flies out and back costs more within the horizon
+  than one that circles close (converging-12 seed 880001 under the defaults: one
+  aircraft circled 14-57 nm from home for 2.5 h with no fallback). An aircraft that
+  closed less than ``progress_fraction`` of a direct flight's progress over the last
+  ``progress_periods`` periods it flew whole is held, in every candidate, on its
+  recovery waypoint: Θ_0's, or, within ``shield.APPROACH_RADIUS_NM`` (60 nm) of home and
+  more than ``shield.APPROACH_TURN_RAD`` (75°) off its bearing, straight ahead (the
+  safety filter's hand-over, whose docstring says why). It stays held until it arrives;
+  a wider round, after one without a feasible candidate, samples it again. In a traffic
+  stream a slot's next flight starts unheld.
+
 Prediction wind and fallback
 ----------------------------
 The controller never sees the true wind. Its prediction wind model is configurable:
@@ -268,6 +299,17 @@ class MPCSettings:
             to decide on it, or "exhaustive" simulates every candidate over the whole
             horizon. Both pick the same candidate from the same draws; only
             "exhaustive" knows every decision's feasible fraction (see "Lazy search").
+        sampling: "joint" (default: every candidate draws every flying aircraft's
+            waypoint) or "clusters" ("homing" only; see "Dense traffic"): when the
+            chain's start breaks a constraint, the candidates draw only the waypoints of
+            the conflict cluster around the aircraft involved.
+        cluster_radius_nm: "clusters": flying aircraft within this distance of an aircraft
+            involved in a violation, where they are when it happens, join its cluster, nm.
+        progress_fraction: the progress rule ("homing" only; None: off, the default): an
+            aircraft that closes less than this share of a direct flight's progress at
+            454 kt (or of its remaining distance, if less) over ``progress_periods``
+            periods is held on its recovery waypoint until it stops flying.
+        progress_periods: the progress rule's window, periods.
     """
 
     period_s: float = DECISION_PERIOD_S
@@ -765,7 +807,7 @@ class MCMCMPC:
         flying0 = view.flying
         for _ in range(s.horizon):
             before = states[:, :, S_X : S_Y + 1].copy()
-            trace = kernel.advance(states, flown_waypoints, wind, s.period_s, self._params, scratch=self._start_scratch)
+            trace = _advance_candidates(states, flown_waypoints, wind, s.period_s, self._params, self._start_scratch)
             newly_bad, _ = self._period_verdict(states, trace, np.ones(1, dtype=bool))
             if newly_bad[0]:
                 involved = self._involved(states[0], trace)
@@ -950,6 +992,22 @@ def _candidate_starts(base_state: np.ndarray, proposals: np.ndarray) -> tuple[np
     return states, waypoints
 
 
+def _advance_candidates(
+    states: np.ndarray, waypoints: np.ndarray, wind_kt: np.ndarray, seconds: float, params: np.ndarray,
+    scratch: kernel.KernelScratch,
+) -> kernel.Trace:
+    """``kernel.advance`` of candidate worlds, a batch of fewer than
+    ``_PARALLEL_FROM_WORLDS`` on one thread (the same bits on any number of threads)."""
+    threads = numba.get_num_threads()
+    if states.shape[0] < _PARALLEL_FROM_WORLDS and threads > 1:
+        numba.set_num_threads(1)
+        try:
+            return kernel.advance(states, waypoints, wind_kt, seconds, params, scratch=scratch)
+        finally:
+            numba.set_num_threads(threads)
+    return kernel.advance(states, waypoints, wind_kt, seconds, params, scratch=scratch)
+
+
 class _LazyCandidates:
     """The K candidates of one round, each simulated only as far as it is asked to be.
 
@@ -1014,20 +1072,7 @@ class _LazyCandidates:
         feasible = self.feasible[index]
         depth = self.depth[index]
         before = states[:, :, S_X : S_Y + 1].copy()
-        threads = numba.get_num_threads()
-        if rows.size < _PARALLEL_FROM_WORLDS and threads > 1:
-            # A small batch on one thread (see _PARALLEL_FROM_WORLDS).
-            numba.set_num_threads(1)
-            try:
-                trace = kernel.advance(
-                    states, waypoints, self.wind_kt[index], s.period_s, mpc._params, scratch=mpc._scratch
-                )
-            finally:
-                numba.set_num_threads(threads)
-        else:
-            trace = kernel.advance(
-                states, waypoints, self.wind_kt[index], s.period_s, mpc._params, scratch=mpc._scratch
-            )
+        trace = _advance_candidates(states, waypoints, self.wind_kt[index], s.period_s, mpc._params, mpc._scratch)
         newly_bad, flown = mpc._period_verdict(states, trace, feasible)
         self.survived[index] += flown
         feasible &= ~newly_bad
