@@ -147,10 +147,15 @@ without them):
   where they are when it happens, form a cluster; the K candidates draw only the
   cluster's waypoints and the other aircraft keep Θ_0's. Every candidate is still flown
   with every aircraft, so feasibility is the joint prediction's, and candidate 0 is Θ_0,
-  so the chain is Table I's over the cluster's coordinates. A round without a feasible
-  candidate grows the cluster by the violations of its longest survivor (another
-  conflict, met once the first is resolved) and runs again at the same width; only a
-  round whose cluster cannot grow leads to the next, wider round.
+  so the chain is Table I's over the cluster's coordinates. After a round without a
+  feasible candidate: if a candidate put the first violation off (it stayed feasible
+  longer than the start), it becomes the chain's start and the next round samples the
+  cluster of its own first violation (a repair; at most ``CLUSTER_REPAIRS`` a decision);
+  otherwise the violations of the longest survivor grow the cluster and the round runs
+  again at the same width; only when neither is possible does the next, wider round
+  follow, and the fallback is chosen among every candidate flown. (Giving a round up
+  after its first 256 candidates halved the decision time on converging-16 but brought
+  fallbacks back: every round searches all K.)
 * The progress rule (``progress_fraction``, ``progress_periods``). The cost looks one
   horizon (20 min) ahead, so an aircraft that overshot near its destination can be kept
   circling it: every candidate that flies out and back costs more within the horizon
@@ -570,13 +575,15 @@ class MCMCMPC:
         # Which aircraft each round samples: all of them (joint), or, under "clusters" when the
         # chain's start breaks a constraint, the conflict cluster around the aircraft involved.
         cluster = self._start_cluster(view, recovering) if s.sampling == "clusters" else None
+        start: np.ndarray | None = None  # the chain's start, when a repair replaced Θ_0
+        repairs = 0
         round_index = 0
         attempts = 0
         while round_index < rounds:
             sampled = flying if cluster is None else cluster
             if round_index == 0:
                 sampled = sampled & ~recovering  # held on their recovery waypoints (progress rule)
-            proposals, log_g = self._propose(view, round_index, flying & ~sampled)
+            proposals, log_g = self._propose(view, round_index, flying & ~sampled, start)
             if s.search == "exhaustive":
                 costs, survived, after_first = self._simulate(view.state, proposals)
                 self.search_world_periods += s.extractions * s.horizon
@@ -601,14 +608,23 @@ class MCMCMPC:
             attempts += 1
             if any_feasible:
                 break
-            if cluster is not None and not cluster[flying].all():
-                # The cluster's rounds found nothing feasible: the violations of its longest
-                # survivor (other aircraft, revealed once the first conflict was resolved)
-                # grow the cluster before the search widens.
-                grown = cluster | self._violation_cluster(view, proposals[int(np.argmax(survived))])
-                if (grown & ~cluster).any():
-                    cluster = grown
-                    continue
+            if cluster is not None:
+                longest = int(np.argmax(survived))
+                if survived[longest] > survived[0] and repairs < CLUSTER_REPAIRS:
+                    # A candidate put the first violation off: it becomes the start, and the
+                    # next round samples the cluster of its own first violation.
+                    repaired = self._violation_cluster(view, proposals[longest])
+                    if repaired.any():
+                        start, cluster = proposals[longest].copy(), repaired
+                        repairs += 1
+                        continue
+                if not cluster[flying].all():
+                    # Nothing put it off: the violations of the longest survivor (other
+                    # aircraft) grow the cluster before the search widens.
+                    grown = cluster | self._violation_cluster(view, proposals[longest])
+                    if (grown & ~cluster).any():
+                        cluster = grown
+                        continue
             round_index += 1
         uniforms = self._rng.random(s.extractions)
         breach_predicted = False
@@ -702,14 +718,15 @@ class MCMCMPC:
         return 1
 
     def _propose(
-        self, view: WorldView, round_index: int = 0, held: np.ndarray | None = None
+        self, view: WorldView, round_index: int = 0, held: np.ndarray | None = None, start: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """K joint proposals (K, N, 2) nm and their log-densities log g (K,) up to a constant.
 
         ``round_index`` > 0 (proposal "homing" only): a wider search after a round in
         which no candidate was feasible. ``held`` (N,) bool ("homing" only): aircraft that
         keep the chain's start's waypoint in every candidate (outside the sampled cluster,
-        or held by the progress rule); they add nothing to log g.
+        or held by the progress rule); they add nothing to log g. ``start`` (N, 2) nm
+        ("homing" only): the chain's start (candidate 0) instead of Θ_0.
         """
         s = self.settings
         n = view.state.shape[0]
@@ -723,7 +740,7 @@ class MCMCMPC:
             z = (distance - s.distance_mean_nm) / s.distance_std_nm
             log_g = -0.5 * (z[:, flying] ** 2).sum(axis=1)
         else:
-            direction, distance, log_g = self._homing_draws(view, bearing, round_index, held)
+            direction, distance, log_g = self._homing_draws(view, bearing, round_index, held, start)
         proposals = view.positions[None] + distance[..., None] * np.stack(
             [np.cos(direction), np.sin(direction)], axis=-1
         )
@@ -731,7 +748,8 @@ class MCMCMPC:
         return inside_workspace(proposals, 0.99 * (self._workspace_radius_nm - self._config.aircraft_radius_nm)), log_g
 
     def _homing_draws(
-        self, view: WorldView, bearing: np.ndarray, round_index: int, held: np.ndarray | None = None
+        self, view: WorldView, bearing: np.ndarray, round_index: int, held: np.ndarray | None = None,
+        start: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Directions (K, N) rad, distances (K, N) nm and log g (K,) of the "homing" proposal.
 
@@ -750,11 +768,15 @@ class MCMCMPC:
         sigma = s.distance_std_nm * (1 + round_index)
         direction, distance = homing_mixture_draws(self._rng, s, heading, bearing, s.extractions, f, sigma)
         home = self._start_directions(view, bearing, f)
+        home_distance = np.full(home.shape, s.home_distance_nm)
+        if start is not None:
+            offset = start - view.positions
+            home, home_distance = np.arctan2(offset[:, 1], offset[:, 0]), np.hypot(offset[:, 0], offset[:, 1])
         direction[0] = home
-        distance[0] = s.home_distance_nm
+        distance[0] = home_distance
         if held is not None and held.any():
             direction[:, held] = home[held]
-            distance[:, held] = s.home_distance_nm
+            distance[:, held] = home_distance[held]
         z = (distance - s.distance_mean_nm) / sigma
         from_bearing = np.abs(_wrap(direction - bearing[None, :])) <= s.angle_range_rad + 1e-12
         from_heading = np.abs(_wrap(direction - heading[None, :])) <= s.recovery_angle_rad + 1e-12
@@ -1006,6 +1028,12 @@ def _advance_candidates(
         finally:
             numba.set_num_threads(threads)
     return kernel.advance(states, waypoints, wind_kt, seconds, params, scratch=scratch)
+
+
+#: ``sampling="clusters"``: how many times one decision may replace the chain's start by a
+#: candidate that put its first violation off (see "Dense traffic").
+CLUSTER_REPAIRS = 4
+
 
 
 class _LazyCandidates:
