@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(stream_rows[-1], file=sys.stderr)
 
     options = [f"--runs {args.runs}" if args.runs != 50 else "", f"--streams {args.streams}" if args.streams != 3 else "",
-               f"--shield {','.join(shielded)}" if shielded else "", "--write"]
+               f"--shield {','.join(shielded)}" if shielded else ""]
     command = " ".join(["python bench/nf_floor_study.py", *filter(None, options)])
     text = "\n".join([
         "## The NF alone as a floor: aimed at the destination, or a leg ahead",
