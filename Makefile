@@ -98,6 +98,7 @@ bench: $(BIN)/atc-nf
 	$(BIN)/python bench/bench_mpc.py --write
 	$(BIN)/python bench/bench_envs.py --write
 	$(BIN)/python bench/bench_shield.py --write
+	$(BIN)/python bench/nf_floor_study.py --shield stream-30,stream-60 --write
 
 # The paper's section IV from fresh runs, into out/reproduction/ (REPRODUCE_ARGS="--runs 1000
 # --write" updates the tracked REPRODUCTION.md and docs/figures/ instead).

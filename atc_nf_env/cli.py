@@ -150,7 +150,8 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
         "--policy",
         default="mpc",
         help=f"the policy: {', '.join(available_policies())} (mpc: the paper's MCMC-MPC, the reference; nf: the "
-        "NF alone, which strands aircraft under wind), or a trained agent's PATH.zip (agents/models/*.zip)",
+        "NF alone, which strands aircraft under wind; nf-leg: the NF alone aimed 130 nm ahead along the line "
+        "home, the floor for traffic streams), or a trained agent's PATH.zip (agents/models/*.zip)",
     )
     parser.add_argument(
         "--scenario",

@@ -96,6 +96,9 @@ def record_dataset(policy: str, task: str, episodes: int, dataset_id: str, *, fi
     from minari.data_collector import EpisodeBuffer
 
     task_ = get_task(task)
+    if task_.is_stream:
+        raise ValueError(f"task = {task!r}: datasets record encounter tasks only "
+                         f"({', '.join(name for name, t in TASKS.items() if not t.is_stream)})")
     train = SPLITS["train"]
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes = {episodes!r}: must be an integer >= 1")
@@ -193,7 +196,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="atc-nf dataset",
                                      description="Record a policy on a benchmark task as a local Minari dataset.")
     parser.add_argument("--policy", required=True, help="a registered policy name (nf, mpc, ...) or a model file")
-    parser.add_argument("--task", required=True, choices=list(TASKS))
+    parser.add_argument("--task", required=True, choices=[name for name, t in TASKS.items() if not t.is_stream])
     parser.add_argument("--episodes", type=int, required=True)
     parser.add_argument("--dataset-id", required=True, help="e.g. atc-nf/converging-4/mpc-v0")
     parser.add_argument("--first-seed", type=int, default=0, help="the first training seed (default 0)")

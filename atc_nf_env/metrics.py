@@ -153,8 +153,15 @@ def summarize_streams(runs: list[RunMetrics]) -> dict[str, Any] | None:
     """The stream block of a summary (None when no run is a stream): totals and means over
     runs, the delays' mean over all flights and max over runs, LoS per flight hour pooled."""
     streams = [r.stream for r in runs if r.stream]
+    return pool_stream_metrics(streams) if streams else None
+
+
+def pool_stream_metrics(streams: list[dict[str, Any]]) -> dict[str, Any]:
+    """The stream blocks of several runs (``RunMetrics.stream``, or the ``stream`` of the
+    evaluator's records) pooled: totals and means over runs, the delays' mean over all
+    flights and max over runs, LoS per flight hour pooled."""
     if not streams:
-        return None
+        raise ValueError("pool_stream_metrics needs at least one run's stream metrics")
     hours = sum(s["flight_hours"] for s in streams)
     los = sum(s["los_count"] for s in streams)
 

@@ -6,7 +6,7 @@ may observe — the aircraft's states, not the wind — and returns one waypoint
 aircraft.
 
 Policies are found by name through one registry (``make_policy``): the entry points of
-the ``atc_nf_env.policies`` group (this project declares ``nf`` and ``mpc`` in its
+the ``atc_nf_env.policies`` group (this project declares ``nf``, ``nf-leg`` and ``mpc`` in its
 ``pyproject.toml``; a third-party package declares its own the same way) and names
 registered in-process with ``register_policy``. Saved policies are found by the file's
 suffix through the ``atc_nf_env.policy_files`` group (``.zip``: a trained SB3 agent).

@@ -84,5 +84,6 @@ if [[ $WHAT == all || $WHAT == benchmarks ]]; then
     run integration-convergence "$PYTHON" bench/integration_convergence_study.py --seeds 30 --write
     run agent-forward "$PYTHON" bench/bench_agent_forward.py --seeds 20 --scenarios converging-4,random-6 --write
     run layout-probe "$PYTHON" bench/layout_probe.py --rounds 31 --write
+    run nf-floor "$PYTHON" bench/nf_floor_study.py --shield stream-30,stream-60 --write
 fi
 echo "regenerated ($WHAT) on build $("$PYTHON" -c 'from atc_nf_env import build; print(build.fingerprint())')"

@@ -102,3 +102,69 @@ def test_atc_nf_routes_the_benchmark_and_dataset_commands_to_their_modules(comma
     with pytest.raises(SystemExit) as exit_:
         cli.main([command, "--help"])
     assert exit_.value.code == 0 and option in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------ stream tasks
+
+
+def test_the_stream_tasks_have_their_own_disjoint_splits_beyond_every_encounter_seed() -> None:
+    streams = {name: task for name, task in TASKS.items() if task.is_stream}
+    assert set(streams) == {"stream-30", "stream-60", "stream-120"}
+    assert all(task.splits is benchmark.STREAM_SPLITS and task.max_time_s == 7200.0 for task in streams.values())
+    assert not any(task.is_stream for name, task in TASKS.items() if name not in streams)
+    ranges = sorted((s.first, s.first + s.size) for s in benchmark.STREAM_SPLITS.values())
+    assert all(end <= start for (_, end), (start, _) in zip(ranges, ranges[1:]))
+    last_encounter_seed = max(s.first + s.size for s in SPLITS.values()) - 1
+    assert ranges[0][0] > last_encounter_seed
+    assert get_split("validation", task="stream-60").first == 4_000_000_000
+    assert get_split("validation").first == 1_000_000_000  # the encounter tasks' splits are v0's
+    with pytest.raises(ValueError, match="validation, test"):
+        get_split("train", task="stream-30")
+
+
+def stream_record(seed: int, *, los: int = 0, outside: float = 0.0, left: bool = False) -> dict:
+    """Two flights home (60 and 80 min, mean delay 10 min), one still airborne."""
+    return {"seed": seed, "los_count": los, "envelope_violation_fraction": outside, "success": not left,
+            "arrived": [True, True, False], "flight_time_min": [60.0, 80.0, 30.0], "decisions": 24,
+            "decision_s_mean": 0.001, "decision_s_each": [0.001] * 24,
+            "stream": {"throughput_per_hour": 1.0, "delay_s": {"mean": 600.0, "max": 900.0}, "flight_hours": 2.8,
+                       "los_count": los, "max_airborne": 3 + seed % 2, "flights_entered": 3, "flights_completed": 2,
+                       "flights_left_workspace": int(left), "entries_held": 0, "airborne_at_end": 1,
+                       "entry_delay_s": {"mean": 150.0, "max": 300.0}}}
+
+
+def test_a_stream_card_carries_the_stream_metrics_and_compares_with_the_direct_flight() -> None:
+    records = [stream_record(4_000_000_000), stream_record(4_000_000_001, outside=0.01),
+               stream_record(4_000_000_002, los=1, left=True)]
+    task, split = TASKS["stream-30"], benchmark.STREAM_SPLITS["validation"]
+    card = card_from_records(task, split, "x", False, records, None)
+    assert card["flight_time_ratio_to_direct"] == pytest.approx(140.0 / 120.0)  # (60+80) / (60+80−2·10)
+    assert "flight_time_ratio_to_mpc" not in card
+    assert (card["runs_safe"], card["runs_home"]) == (1, 2)
+    assert card["score"] == lexicographic_score(3, 1, 2, 140.0 / 120.0)
+    stream = card["stream"]
+    assert stream["throughput_per_hour"] == {"min": 1.0, "mean": 1.0, "max": 1.0}
+    assert stream["delay_s"] == {"mean": 600.0, "max": 900.0}
+    assert (stream["los_count"], stream["runs_outside_envelope"], stream["max_airborne"]) == (1, 1, 4)
+    assert stream["los_per_flight_hour"] == pytest.approx(1 / 8.4)
+    assert stream["flights_airborne_at_end"] == 3
+    with pytest.raises(ValueError, match="direct flight"):
+        card_from_records(task, split, "x", False, records, records)
+    with pytest.raises(ValueError, match="no stream metrics"):
+        card_from_records(task, split, "x", False, [record(4_000_000_000)], None)
+
+
+def test_nf_leg_scores_a_stream_task_without_flying_the_mpc(tmp_path) -> None:
+    from atc_nf_env.policy import register_policy
+    from baselines import NFLeg
+
+    register_policy("nf-leg", NFLeg)  # in this process, whether or not the package is reinstalled
+    card = benchmark.score_card("nf-leg", "stream-30", "validation", 2, workers=1, results_dir=tmp_path)
+    assert (card["suite_version"], card["task"], card["seeds"]) == ("v1", "stream-30", [4_000_000_000, 4_000_000_001])
+    assert sorted(p.name for p in (tmp_path / "stream-30" / "validation").iterdir()) == ["nf-leg.jsonl"]
+    stream = card["stream"]
+    assert stream["flights_entered"] > 40 and stream["flights_completed"] > 0
+    assert stream["max_airborne"] <= 61 and stream["throughput_per_hour"]["mean"] > 0
+    assert card["flight_time_ratio_to_direct"] > 1.0
+    assert card["runs_outside_envelope"] == stream["runs_outside_envelope"]
+    assert "throughput" in benchmark.format_card(card)
