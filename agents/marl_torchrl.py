@@ -136,7 +136,12 @@ class PPOConfig:
 def _check_args(algorithm: str, task: str, seed: int, frames: int) -> None:
     if algorithm not in ALGORITHMS:
         raise ValueError(f"algorithm = {algorithm!r}: allowed: {', '.join(ALGORITHMS)}")
-    get_task(task)
+    if get_task(task).is_stream:
+        from atc_nf_env.benchmark import TASKS
+
+        encounters = [name for name, t in TASKS.items() if not t.is_stream]
+        raise ValueError(f"task = {task!r} is a traffic stream: the batched TorchRL env flies encounters; "
+                         f"allowed: {', '.join(encounters)}")
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < SPLITS["train"].size // SEEDS_PER_RUN:
         raise ValueError(f"seed = {seed!r}: must be an integer in [0, {SPLITS['train'].size // SEEDS_PER_RUN})")
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:

@@ -122,6 +122,8 @@ def test_bad_input_gets_clear_errors() -> None:
         train("dqn", "converging-4", 0, 10, Path("unused"))
     with pytest.raises(ValueError, match="task"):
         train("ippo", "converging-5", 0, 10, Path("unused"))
+    with pytest.raises(ValueError, match="traffic stream.*allowed: converging-4"):
+        train("ippo", "stream-30", 0, 10, Path("unused"))
 
 
 @pytest.mark.parametrize("algorithm", ["ippo", "mappo"])
