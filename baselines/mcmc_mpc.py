@@ -1032,7 +1032,7 @@ def _advance_candidates(
 
 #: ``sampling="clusters"``: how many times one decision may replace the chain's start by a
 #: candidate that put its first violation off (see "Dense traffic").
-CLUSTER_REPAIRS = 4
+CLUSTER_REPAIRS = 8
 
 
 
