@@ -145,3 +145,24 @@ def test_the_progress_rule_judges_a_slot_only_over_a_window_its_flight_flew_whol
 def test_bad_dense_settings_are_clear_errors(kwargs, field):
     with pytest.raises(ValueError, match=field):
         MCMCMPC(**kwargs)
+
+
+def test_the_dense_study_prints_one_row_per_setting_and_scenario(capsys, monkeypatch):
+    import importlib.util
+    from pathlib import Path
+
+    bench = Path(__file__).resolve().parent.parent / "bench"
+    monkeypatch.syspath_prepend(str(bench))
+    spec = importlib.util.spec_from_file_location("mpc_dense_study", bench / "mpc_dense_study.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    assert study.main(["--scenarios", "converging-3", "--runs", "1", "--first-seed", "5"]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith(("| joint |", "| dense |"))]
+    # converging-4 (the decision-time reference) and converging-3 for each setting, printed
+    # as they come and again in the section.
+    assert len(rows) == 8 and all("| 1 | 1 | 0 |" in row for row in rows)
+    assert "--runs 1 --first-seed 5" in out and "seeds 5–5" in out
+    with pytest.raises(SystemExit):
+        study.main(["--settings", "fast"])
+    assert "allowed: joint, dense" in capsys.readouterr().err
