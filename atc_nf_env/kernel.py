@@ -374,7 +374,7 @@ def _commands(
             cells[_GRID + cells_grid.GRID_X, i] = state[i, S_X]
             cells[_GRID + cells_grid.GRID_Y, i] = state[i, S_Y]
             cells[_GRID + cells_grid.GRID_MEMBER, i] = 1.0 if status[i] == FLYING else 0.0
-        _, _, _, nx, ny = cells_grid.build(cells, _GRID, n, _cell_nm(params))
+        nx, ny, _, _ = cells_grid.prepare(cells, _GRID, n, _cell_nm(params))
     any_flying = False
     # Pass 1, from the positions at the start of the step: every flying aircraft's
     # gradients, feedback airspeed −sgn(P_i) F_i and heading rate.
@@ -646,9 +646,9 @@ def _ordinary_run(
         # test is symmetric in the pair: q_j − q_i is exactly −(q_i − q_j)).
         near = False
         if by_grid:
-            _fill_grid(lanes, lanes, A_X, A_Y, count)
-            _, _, _, nx, ny = cells_grid.build(lanes, _GRID, count, _cell_nm(params))
-            near = cells_grid.any_within(lanes, _GRID, count, nx, ny, r_sense2, inv_len)
+            _fill_grid(lanes, A_X, A_Y, count, n)
+            nx, ny, _, _ = cells_grid.prepare(lanes, _GRID, n, _cell_nm(params))
+            near = cells_grid.any_within(lanes, _GRID, n, nx, ny, r_sense2, inv_len)
         else:
             for a in range(count):
                 xa = lanes[A_X, a] * inv_len
@@ -708,9 +708,9 @@ def _ordinary_run(
         new_min_sep2 = min_sep2
         lost = False
         if by_grid:
-            _fill_grid(lanes, lanes, A_X1, A_Y1, count)
-            _, _, width, nx, ny = cells_grid.build(lanes, _GRID, count, _cell_nm(params))
-            new_min_sep2, lost = cells_grid.separation(lanes, _GRID, count, nx, ny, width, min_sep2,
+            _fill_grid(lanes, A_X1, A_Y1, count, n)
+            nx, ny, width, skin = cells_grid.prepare(lanes, _GRID, n, _cell_nm(params))
+            new_min_sep2, lost = cells_grid.separation(lanes, _GRID, n, nx, ny, width, skin, min_sep2,
                                                        sep_min * sep_min, los_pairs, False)
         else:
             for a in range(count):
@@ -765,13 +765,17 @@ def _ordinary_run(
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
-def _fill_grid(cells: np.ndarray, source: np.ndarray, row_x: int, row_y: int, count: int) -> None:
-    """The neighbour grid's members: the first ``count`` columns of ``source``'s rows
-    ``row_x``, ``row_y`` (positions, nm), every one a member."""
+def _fill_grid(lanes: np.ndarray, row_x: int, row_y: int, count: int, n: int) -> None:
+    """The neighbour grid's members in ``lanes``' own rows from ``N_AIRCRAFT_LANE``: the
+    aircraft of its first ``count`` lanes (``A_INDEX``) at the positions of rows ``row_x``,
+    ``row_y`` (nm), by aircraft index (of ``n``)."""
+    for i in range(n):
+        lanes[_GRID + cells_grid.GRID_MEMBER, i] = 0.0
     for k in range(count):
-        cells[_GRID + cells_grid.GRID_X, k] = source[row_x, k]
-        cells[_GRID + cells_grid.GRID_Y, k] = source[row_y, k]
-        cells[_GRID + cells_grid.GRID_MEMBER, k] = 1.0
+        i = int(lanes[A_INDEX, k])
+        lanes[_GRID + cells_grid.GRID_X, i] = lanes[row_x, k]
+        lanes[_GRID + cells_grid.GRID_Y, i] = lanes[row_y, k]
+        lanes[_GRID + cells_grid.GRID_MEMBER, i] = 1.0
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
@@ -861,6 +865,8 @@ def _advance_world(
 
     _begin_world(state, waypoints, min_airspeed, max_airspeed, violation_steps, worst_excursion, steps_flown,
                  los_pairs, record)
+    if by_grid:
+        cells_grid.forget(aircraft_lanes, _GRID)
     min_sep2 = NO_PAIR_SEPARATION_NM * NO_PAIR_SEPARATION_NM
     sep_min2 = sep_min * sep_min
     violated = False
@@ -984,9 +990,9 @@ def _advance_world(
                     aircraft_lanes[_GRID + cells_grid.GRID_X, i] = state[i, S_X]
                     aircraft_lanes[_GRID + cells_grid.GRID_Y, i] = state[i, S_Y]
                     aircraft_lanes[_GRID + cells_grid.GRID_MEMBER, i] = 1.0 if command[i, C_FLEW] == 2.0 else 0.0
-                _, _, width, nx, ny = cells_grid.build(aircraft_lanes, _GRID, n, _cell_nm(params))
-                min_sep2, lost = cells_grid.separation(aircraft_lanes, _GRID, n, nx, ny, width, min_sep2, sep_min2,
-                                                       los_pairs, True)
+                nx, ny, width, skin = cells_grid.prepare(aircraft_lanes, _GRID, n, _cell_nm(params))
+                min_sep2, lost = cells_grid.separation(aircraft_lanes, _GRID, n, nx, ny, width, skin, min_sep2,
+                                                       sep_min2, los_pairs, True)
                 step_violation |= lost
             else:
                 for i in range(n):
@@ -1343,16 +1349,16 @@ def _lane_pairs_by_grid(b0: int, count: int, lanes: np.ndarray, temp: np.ndarray
             cells[_GRID + cells_grid.GRID_X, i] = lanes[S_X, i, k]
             cells[_GRID + cells_grid.GRID_Y, i] = lanes[S_Y, i, k]
             cells[_GRID + cells_grid.GRID_MEMBER, i] = 1.0
-        _, _, _, nx, ny = cells_grid.build(cells, _GRID, n, cell_nm)
+        nx, ny, _, _ = cells_grid.prepare(cells, _GRID, n, cell_nm)
         if cells_grid.any_within(cells, _GRID, n, nx, ny, r_sense2, inv_len):
             world[W_ORDINARY, k] = 0.0
             continue
         for i in range(n):
             cells[_GRID + cells_grid.GRID_X, i] = temp[T_X1, i, k]
             cells[_GRID + cells_grid.GRID_Y, i] = temp[T_Y1, i, k]
-        _, _, width, nx, ny = cells_grid.build(cells, _GRID, n, cell_nm)
-        least2, lost = cells_grid.separation(cells, _GRID, n, nx, ny, width, world[W_MIN_SEP2, k], sep_min * sep_min,
-                                             los_pairs[b0 + k], False)
+        nx, ny, width, skin = cells_grid.prepare(cells, _GRID, n, cell_nm)
+        least2, lost = cells_grid.separation(cells, _GRID, n, nx, ny, width, skin, world[W_MIN_SEP2, k],
+                                             sep_min * sep_min, los_pairs[b0 + k], False)
         world[W_NEW_MIN_SEP2, k] = least2
         if lost:
             world[W_ORDINARY, k] = 0.0
@@ -1463,6 +1469,8 @@ def _fly_lanes(
             for field in range(N_STATE):
                 lanes[field, i, k] = state[b, i, field]
         world[W_ACTIVE, k] = 1.0
+        if aircraft_lanes.shape[1] > N_AIRCRAFT_LANE:
+            cells_grid.forget(aircraft_lanes[b], _GRID)
         world[W_MIN_SEP2, k] = NO_PAIR_SEPARATION_NM * NO_PAIR_SEPARATION_NM
         world[W_MIN_SEP_SCALAR, k] = NO_PAIR_SEPARATION_NM
         world[W_STEPS, k] = 0.0

@@ -15,7 +15,7 @@ Every distance is computed in the same arithmetic as the all-pairs loops, and th
 neighbours come out in index order, so the NF's products and sums are taken in the same
 order: the kernel flies the same bits with the grid as without (``tests/test_neighbour_grid.py``).
 
-The grid covers the aircraft's bounding box, in at most 4 N cells (wider cells where the
+The grid covers the aircraft's bounding box, in at most 2 N cells (wider cells where the
 box is larger, fewer aircraft per cell being then no longer the point), so that building it
 costs O(N); aircraft outside it (none, by construction, but for rounding) are clamped into
 its border cells, which keeps the distance bounds. Its scratch is rows of the kernel's
@@ -35,14 +35,17 @@ from numba import njit
 from atc_nf_env.nf import FAST_MATH_FLAGS, NO_REFERENCE_COUNTS
 
 # Rows of the grid's scratch, from its first row.
-GRID_X = 0  # position x of each aircraft, nm (filled by the caller)
+GRID_X = 0  # position x of each aircraft now, nm (filled by the caller)
 GRID_Y = 1  # position y, nm
-GRID_MEMBER = 2  # 1 where the aircraft is in the grid (filled by the caller), else 0
-GRID_CX = 3  # its cell's column
-GRID_CY = 4  # its cell's row
-GRID_ITEM = 5  # the members sorted by cell, in index order within a cell
-GRID_LIST = 6  # one aircraft's neighbours (``neighbours``)
-GRID_TABLE = 7  # row GRID_TABLE + cy: column cx the start of cell (cx, cy) in GRID_ITEM, column nx its row's end
+GRID_MEMBER = 2  # 1 where the aircraft is asked about now (filled by the caller), else 0
+GRID_X0 = 3  # position x when the grid was built, nm
+GRID_Y0 = 4  # position y
+GRID_CX = 5  # its cell's column
+GRID_CY = 6  # its cell's row
+GRID_ITEM = 7  # the members sorted by cell, in index order within a cell
+GRID_LIST = 8  # one aircraft's neighbours (``neighbours``)
+GRID_META = 9  # column 0 of rows GRID_META ... + 3: built (1) or not (0), nx, ny, cell width nm
+GRID_TABLE = 13  # row GRID_TABLE + cy: column cx the start of cell (cx, cy) in GRID_ITEM, column nx its row's end
 
 #: Relative widening of the cells beyond ``cell_nm``, and (times the largest coordinate) the
 #: absolute one: far beyond the rounding of any distance or cell index, so that aircraft in
@@ -51,6 +54,9 @@ _WIDEN_REL = 1.0e-6
 _WIDEN_ABS = 1.0e-9
 #: Margin of the bound that pairs not yet looked at exceed (r cells: r · width · (1 − margin)).
 _BOUND_MARGIN = 1.0e-5
+#: Skin of the cells, as a fraction of ``cell_nm``: the cells are this much wider, and a grid
+#: serves (``prepare``) until an aircraft has moved half of it along x or y since it was built.
+SKIN = 0.25
 
 
 def cell_rows(n_aircraft: int) -> int:
@@ -66,8 +72,9 @@ def grid_rows(n_aircraft: int) -> int:
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def build(g: np.ndarray, base: int, n: int, cell_nm: float) -> tuple[float, float, float, int, int]:
     """Sort the members (``g[base + GRID_MEMBER, i] != 0``, at ``GRID_X``/``GRID_Y``) of the
-    first ``n`` columns into cells at least ``cell_nm`` wide. Returns (x and y of the grid's
-    corner nm, cell width nm, columns nx, rows ny); nx = 0 when fewer than two are members."""
+    first ``n`` columns into cells at least ``cell_nm`` (the skin included) wide. Returns (x
+    and y of the grid's corner nm, cell width nm, columns nx, rows ny); nx = 0 when fewer
+    than two are members."""
     x_lo = math.inf
     x_hi = -math.inf
     y_lo = math.inf
@@ -82,7 +89,15 @@ def build(g: np.ndarray, base: int, n: int, cell_nm: float) -> tuple[float, floa
             y_lo = min(y_lo, y)
             y_hi = max(y_hi, y)
             members += 1
+    for i in range(n):
+        g[base + GRID_X0, i] = g[base + GRID_X, i]
+        g[base + GRID_Y0, i] = g[base + GRID_Y, i]
+        g[base + GRID_CX, i] = -1.0  # not a member
     if members < 2:
+        g[base + GRID_META, 0] = 1.0
+        g[base + GRID_META + 1, 0] = 0.0
+        g[base + GRID_META + 2, 0] = 0.0
+        g[base + GRID_META + 3, 0] = 1.0
         return 0.0, 0.0, 1.0, 0, 0
     largest = max(max(abs(x_lo), abs(x_hi)), max(abs(y_lo), abs(y_hi)))
     width = cell_nm * (1.0 + _WIDEN_REL) + _WIDEN_ABS * largest
@@ -92,9 +107,9 @@ def build(g: np.ndarray, base: int, n: int, cell_nm: float) -> tuple[float, floa
     fx = span_x / width
     fy = span_y / width
     # Wider cells until the box fits: at most N − 1 columns (one more holds each row's
-    # end), the rows there are, and 4 N cells. Bounded, whatever the coordinates.
+    # end), the rows there are, and 2 N cells. Bounded, whatever the coordinates.
     for _ in range(4000):
-        if fx < n - 1 and fy < tables and (fx + 1.0) * (fy + 1.0) <= 4.0 * n:
+        if fx < n - 1 and fy < tables and (fx + 1.0) * (fy + 1.0) <= 2.0 * n:
             break
         width *= 1.5
         fx = span_x / width
@@ -128,7 +143,40 @@ def build(g: np.ndarray, base: int, n: int, cell_nm: float) -> tuple[float, floa
             cx = int(g[base + GRID_CX, i])
             g[cell, cx] -= 1.0
             g[base + GRID_ITEM, int(g[cell, cx])] = i
+    g[base + GRID_META, 0] = 1.0
+    g[base + GRID_META + 1, 0] = nx
+    g[base + GRID_META + 2, 0] = ny
+    g[base + GRID_META + 3, 0] = width
     return x_lo, y_lo, width, nx, ny
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
+def forget(g: np.ndarray, base: int) -> None:
+    """No grid built: the next ``prepare`` builds one (a new call, whose aircraft may be others)."""
+    g[base + GRID_META, 0] = 0.0
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
+def prepare(g: np.ndarray, base: int, n: int, cell_nm: float) -> tuple[int, int, float, float]:
+    """A grid for the members and positions the caller filled in (``GRID_MEMBER``,
+    ``GRID_X``, ``GRID_Y`` of the first ``n`` columns): the one built before if every member
+    now was one then and has moved at most half a skin along x and y since, else a new one
+    with cells ``cell_nm`` plus a skin wide. Returns (nx, ny, cell width nm, skin nm) for
+    the queries. Within one kernel call aircraft only ever stop being members, so the
+    caller ``forget``s the grid when a call begins."""
+    skin = SKIN * cell_nm
+    if g[base + GRID_META, 0] != 0.0:
+        half = 0.5 * skin
+        still = True
+        for i in range(n):
+            if g[base + GRID_MEMBER, i] != 0.0:
+                # A NaN fails both tests and rebuilds.
+                still &= (g[base + GRID_CX, i] >= 0.0) & (abs(g[base + GRID_X, i] - g[base + GRID_X0, i]) <= half) & (
+                    abs(g[base + GRID_Y, i] - g[base + GRID_Y0, i]) <= half)
+        if still:
+            return int(g[base + GRID_META + 1, 0]), int(g[base + GRID_META + 2, 0]), g[base + GRID_META + 3, 0], skin
+    _, _, width, nx, ny = build(g, base, n, cell_nm + skin)
+    return nx, ny, width, skin
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
@@ -150,7 +198,7 @@ def any_within(g: np.ndarray, base: int, n: int, nx: int, ny: int, radius2: floa
         for yy in range(max(cy - 1, 0), min(cy + 2, ny)):
             for k in range(int(g[table + yy, lo_x]), int(g[table + yy, hi_x])):
                 j = int(g[base + GRID_ITEM, k])
-                if j <= i:
+                if j <= i or g[base + GRID_MEMBER, j] == 0.0:
                     continue
                 rx = xi - g[base + GRID_X, j] * inv_len
                 ry = yi - g[base + GRID_Y, j] * inv_len
@@ -162,7 +210,9 @@ def any_within(g: np.ndarray, base: int, n: int, nx: int, ny: int, radius2: floa
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def neighbours(g: np.ndarray, base: int, i: int, nx: int, ny: int, radius2: float, inv_len: float) -> int:
     """The members other than ``i`` within the sensing radius of member ``i``, in the NF's
-    arithmetic, into ``g[base + GRID_LIST]`` in increasing index; returns their number."""
+    arithmetic, into ``g[base + GRID_LIST]`` in increasing index; returns their number.
+    Members are those flagged in ``GRID_MEMBER`` now: flags cleared since ``build`` (a grid
+    of the same positions reused for fewer aircraft) leave those aircraft out."""
     if nx == 0:
         return 0
     table = base + GRID_TABLE
@@ -177,7 +227,7 @@ def neighbours(g: np.ndarray, base: int, i: int, nx: int, ny: int, radius2: floa
     for yy in range(max(cy - 1, 0), min(cy + 2, ny)):
         for k in range(int(g[table + yy, lo_x]), int(g[table + yy, hi_x])):
             j = int(g[base + GRID_ITEM, k])
-            if j == i:
+            if j == i or g[base + GRID_MEMBER, j] == 0.0:
                 continue
             rx = xi - g[base + GRID_X, j] * inv_len
             ry = yi - g[base + GRID_Y, j] * inv_len
@@ -201,7 +251,7 @@ def _closest_in(g: np.ndarray, base: int, i: int, start: int, end: int, least2: 
     yi = g[base + GRID_Y, i]
     for k in range(start, end):
         j = int(g[base + GRID_ITEM, k])
-        if j <= i:
+        if j <= i or g[base + GRID_MEMBER, j] == 0.0:
             continue
         sx = xi - g[base + GRID_X, j]
         sy = yi - g[base + GRID_Y, j]
@@ -210,7 +260,7 @@ def _closest_in(g: np.ndarray, base: int, i: int, start: int, end: int, least2: 
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
-def separation(g: np.ndarray, base: int, n: int, nx: int, ny: int, width: float, least2: float,
+def separation(g: np.ndarray, base: int, n: int, nx: int, ny: int, width: float, skin: float, least2: float,
                sep_min2: float, los_pairs: np.ndarray, mark: bool) -> tuple[float, bool]:
     """The smallest squared separation (nm²) among the members, and ``least2`` if smaller
     (exact, over every pair), and whether a pair is closer than the separation minimum
@@ -234,7 +284,7 @@ def separation(g: np.ndarray, base: int, n: int, nx: int, ny: int, width: float,
         for yy in range(max(cy - 1, 0), min(cy + 2, ny)):
             for k in range(int(g[table + yy, lo_x]), int(g[table + yy, hi_x])):
                 j = int(g[base + GRID_ITEM, k])
-                if j <= i:
+                if j <= i or g[base + GRID_MEMBER, j] == 0.0:
                     continue
                 sx = xi - g[base + GRID_X, j]
                 sy = yi - g[base + GRID_Y, j]
@@ -246,11 +296,12 @@ def separation(g: np.ndarray, base: int, n: int, nx: int, ny: int, width: float,
                         los_pairs[i, j] = 1
                         los_pairs[j, i] = 1
     # Rings r = 2, 3, … of cells (Chebyshev distance r) until every pair not looked at is
-    # known to be farther apart than the smallest found: cells r + 1 apart are more than
-    # r widths apart.
+    # known to be farther apart than the smallest found: cells r + 1 apart were more than
+    # r widths apart along x or y when the grid was built, and two aircraft have since
+    # closed in by at most a skin along each (half a skin each).
     r = 1
     while r < max(nx, ny) - 1:
-        bound = r * width * (1.0 - _BOUND_MARGIN)
+        bound = r * width * (1.0 - _BOUND_MARGIN) - 1.5 * skin
         if least2 < bound * bound:
             break
         r += 1
