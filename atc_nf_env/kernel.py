@@ -239,13 +239,11 @@ N_AIRCRAFT_FIELDS = 19
 (A_GX, A_GY, A_ARG_X, A_ATAN2, A_SIN, A_COS, A_X1, A_Y1, A_HEADING1, A_VX, A_VY, A_OMEGA, A_U, A_THETA_NH1,
  A_STEP_NM, A_VIOLATED, A_INDEX) = range(19, 36)
 N_AIRCRAFT_LANE = 36
-#: First row of the neighbour grid's scratch (``neighbour_grid``) in the aircraft lanes of a
-#: scratch that has it (``KernelScratch``: from ``GRID_MIN_AIRCRAFT`` aircraft); a scratch of
-#: ``N_AIRCRAFT_LANE`` rows flies every pair loop over all pairs, with the same bits.
-_GRID = N_AIRCRAFT_LANE
+#: First row of the neighbour grid's own scratch (``cells``, ``neighbour_grid.grid_rows``).
+_GRID = 0
 #: Fewest aircraft for which ``KernelScratch`` gives a world the neighbour grid: below it the
 #: loops over all pairs are as fast or faster (``bench/bench_kernel.py``, the scaling table).
-GRID_MIN_AIRCRAFT = 16
+GRID_MIN_AIRCRAFT = 24
 
 # Record fields (optional per-step recording).
 R_X, R_Y, R_HEADING, R_AIRSPEED, R_FLEW = 0, 1, 2, 3, 4  # R_FLEW: 1 if it flew that step
@@ -344,13 +342,12 @@ def _commands(
     nf_consts: tuple,
     params: np.ndarray,
     inv_dt: float,
-    cells: np.ndarray,
-    by_grid: bool,
+    cells,
 ) -> tuple[bool, bool, bool]:
     """The law's commands (5a)-(5b) of every flying aircraft from the current positions,
-    into ``command``; the neighbours found over all pairs, or with ``by_grid`` through the
-    neighbour grid in ``cells``' rows from ``N_AIRCRAFT_LANE`` (the same neighbours in the
-    same order, so the same bits). Returns (any aircraft flying, the step is to be refined: a command
+    into ``command``; the neighbours found over all pairs (``cells`` None), or through the
+    neighbour grid in ``cells`` (the same neighbours in the same order, so the same bits).
+    Returns (any aircraft flying, the step is to be refined: a command
     saturated at the cap (guard 2), under the right-hand rule (guard 9) or with a 1/P_i
     term above ``substep_from_kt`` (guard 8), any command outside the envelope)."""
     n = state.shape[0]
@@ -369,7 +366,7 @@ def _commands(
     r_sense2 = nf_consts[7]
     nx = 0
     ny = 0
-    if by_grid:
+    if cells is not None:
         for i in range(n):
             cells[_GRID + cells_grid.GRID_X, i] = state[i, S_X]
             cells[_GRID + cells_grid.GRID_Y, i] = state[i, S_Y]
@@ -387,7 +384,7 @@ def _commands(
         theta_d = state[i, S_THETA_D]
         cos_d = state[i, S_COS_D]
         sin_d = state[i, S_SIN_D]
-        if by_grid:
+        if cells is not None:
             n_near = cells_grid.neighbours(cells, _GRID, i, nx, ny, r_sense2, inv_len_nf)
             nf.nf_along_neighbours(i, pos, cells[_GRID + cells_grid.GRID_LIST], n_near, wx, wy, cos_d, sin_d,
                                    nf_consts, grad[i])
@@ -435,10 +432,11 @@ def _commands(
         dphi_dt = 0.0
         # Over the neighbours only: a farther aircraft's gradient row is zero (its term ±0).
         m = n if command[i, C_NEAR] > 0 else 0
-        if by_grid and m > 0:
-            m = cells_grid.neighbours(cells, _GRID, i, nx, ny, r_sense2, inv_len_nf)
+        if cells is not None:
+            if m > 0:
+                m = cells_grid.neighbours(cells, _GRID, i, nx, ny, r_sense2, inv_len_nf)
         for q in range(m):
-            j = int(cells[_GRID + cells_grid.GRID_LIST, q]) if by_grid else q
+            j = q if cells is None else int(cells[_GRID + cells_grid.GRID_LIST, q])
             if j == i or status[j] != FLYING:
                 continue
             along_j = grad[i, j, 0] * command[j, C_COS] + grad[i, j, 1] * command[j, C_SIN]
@@ -458,10 +456,11 @@ def _commands(
                 continue
             dphi_dt = 0.0
             m = n if command[i, C_NEAR] > 0 else 0
-            if by_grid and m > 0:
-                m = cells_grid.neighbours(cells, _GRID, i, nx, ny, r_sense2, inv_len_nf)
+            if cells is not None:
+                if m > 0:
+                    m = cells_grid.neighbours(cells, _GRID, i, nx, ny, r_sense2, inv_len_nf)
             for q in range(m):
-                j = int(cells[_GRID + cells_grid.GRID_LIST, q]) if by_grid else q
+                j = q if cells is None else int(cells[_GRID + cells_grid.GRID_LIST, q])
                 if j == i or status[j] != FLYING:
                     continue
                 along_j = grad[i, j, 0] * command[j, C_COS] + grad[i, j, 1] * command[j, C_SIN]
@@ -588,7 +587,7 @@ def _ordinary_run(
     record_every: int,
     step0: int,
     los_pairs: np.ndarray,
-    by_grid: bool,
+    cells,
 ) -> tuple[int, bool, float, bool]:
     """As many consecutive integration steps of one world as are ordinary, up to
     ``max_steps``, by the lane step's arithmetic: every flying aircraft without a flying
@@ -598,8 +597,8 @@ def _ordinary_run(
     column per aircraft) from the first of these steps to the last, and the state is
     written back once; a step that proves not ordinary is abandoned with nothing written
     (the scalar path flies it). ``step0``: steps done before this call (for the record).
-    ``by_grid``: the pairs through the neighbour grid in ``aircraft_lanes``' rows from
-    ``N_AIRCRAFT_LANE`` (``los_pairs``: not written), else over all pairs; the same bits.
+    ``cells``: the neighbour grid's scratch, through which the pairs are found (``los_pairs``:
+    not written), or None: over all pairs; the same bits.
 
     Returns (steps flown; whether a step left the envelope; the smallest squared
     separation so far, nm²; whether it stopped at a step that is not ordinary, which the
@@ -645,10 +644,10 @@ def _ordinary_run(
         # No two flying aircraft within the sensing radius, in the NF's own arithmetic (its
         # test is symmetric in the pair: q_j − q_i is exactly −(q_i − q_j)).
         near = False
-        if by_grid:
-            _fill_grid(lanes, A_X, A_Y, count, n)
-            nx, ny, _, _ = cells_grid.prepare(lanes, _GRID, n, _cell_nm(params))
-            near = cells_grid.any_within(lanes, _GRID, n, nx, ny, r_sense2, inv_len)
+        if cells is not None:
+            _fill_grid(cells, lanes, A_X, A_Y, count, n)
+            nx, ny, _, _ = cells_grid.prepare(cells, _GRID, n, _cell_nm(params))
+            near = cells_grid.any_within(cells, _GRID, n, nx, ny, r_sense2, inv_len)
         else:
             for a in range(count):
                 xa = lanes[A_X, a] * inv_len
@@ -707,10 +706,10 @@ def _ordinary_run(
             break
         new_min_sep2 = min_sep2
         lost = False
-        if by_grid:
-            _fill_grid(lanes, A_X1, A_Y1, count, n)
-            nx, ny, width, skin = cells_grid.prepare(lanes, _GRID, n, _cell_nm(params))
-            new_min_sep2, lost = cells_grid.separation(lanes, _GRID, n, nx, ny, width, skin, min_sep2,
+        if cells is not None:
+            _fill_grid(cells, lanes, A_X1, A_Y1, count, n)
+            nx, ny, width, skin = cells_grid.prepare(cells, _GRID, n, _cell_nm(params))
+            new_min_sep2, lost = cells_grid.separation(cells, _GRID, n, nx, ny, width, skin, min_sep2,
                                                        sep_min * sep_min, los_pairs, False)
         else:
             for a in range(count):
@@ -765,17 +764,17 @@ def _ordinary_run(
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
-def _fill_grid(lanes: np.ndarray, row_x: int, row_y: int, count: int, n: int) -> None:
-    """The neighbour grid's members in ``lanes``' own rows from ``N_AIRCRAFT_LANE``: the
-    aircraft of its first ``count`` lanes (``A_INDEX``) at the positions of rows ``row_x``,
-    ``row_y`` (nm), by aircraft index (of ``n``)."""
+def _fill_grid(cells: np.ndarray, lanes: np.ndarray, row_x: int, row_y: int, count: int, n: int) -> None:
+    """The neighbour grid's members: the aircraft of ``lanes``' first ``count`` lanes
+    (``A_INDEX``) at the positions of rows ``row_x``, ``row_y`` (nm), by aircraft index (of
+    ``n``)."""
     for i in range(n):
-        lanes[_GRID + cells_grid.GRID_MEMBER, i] = 0.0
+        cells[_GRID + cells_grid.GRID_MEMBER, i] = 0.0
     for k in range(count):
         i = int(lanes[A_INDEX, k])
-        lanes[_GRID + cells_grid.GRID_X, i] = lanes[row_x, k]
-        lanes[_GRID + cells_grid.GRID_Y, i] = lanes[row_y, k]
-        lanes[_GRID + cells_grid.GRID_MEMBER, i] = 1.0
+        cells[_GRID + cells_grid.GRID_X, i] = lanes[row_x, k]
+        cells[_GRID + cells_grid.GRID_Y, i] = lanes[row_y, k]
+        cells[_GRID + cells_grid.GRID_MEMBER, i] = 1.0
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
@@ -838,16 +837,17 @@ def _advance_world(
     record: np.ndarray,
     record_every: int,
     ordinary_steps: bool,
+    cells=None,
 ) -> tuple[float, int, bool]:
     """Advance one world by n_steps; returns (min separation, steps done, violated).
     ``aircraft_lanes`` (N_AIRCRAFT_LANE, N): scratch of the runs of ordinary steps.
     ``ordinary_steps``: fly the ordinary steps by ``_ordinary_run`` (every caller; False
     flies every step by the general path, which the tests compare it with).
-    With more rows than ``N_AIRCRAFT_LANE``, ``aircraft_lanes`` holds the neighbour grid's
-    scratch too (``neighbour_grid.grid_rows``), and the pairs are found through it: the
-    same bits as over all pairs, in O(N) a step."""
+    ``cells``: the neighbour grid's scratch (``neighbour_grid.grid_rows``, N), through which
+    the pairs are found, the same bits as over all pairs in O(N) a step; or None (the
+    default): over all pairs. None is a type of its own to numba, which then compiles no
+    grid at all (``_advance_one`` passes it on)."""
     n = state.shape[0]
-    by_grid = aircraft_lanes.shape[0] > N_AIRCRAFT_LANE
     dt = params[P_DT]
     u_min = params[P_U_MIN]
     u_max = params[P_U_MAX]
@@ -865,8 +865,8 @@ def _advance_world(
 
     _begin_world(state, waypoints, min_airspeed, max_airspeed, violation_steps, worst_excursion, steps_flown,
                  los_pairs, record)
-    if by_grid:
-        cells_grid.forget(aircraft_lanes, _GRID)
+    if cells is not None:
+        cells_grid.forget(cells, _GRID)
     min_sep2 = NO_PAIR_SEPARATION_NM * NO_PAIR_SEPARATION_NM
     sep_min2 = sep_min * sep_min
     violated = False
@@ -881,7 +881,7 @@ def _advance_world(
             flew, step_violation, min_sep2, abandoned = _ordinary_run(
                 state, command, aircraft_lanes, wind_x, wind_y, params, nf_consts, min_sep2, min_airspeed,
                 max_airspeed, violation_steps, worst_excursion, steps_flown, n_steps - step, stop_on_violation,
-                record, record_every, step, los_pairs, by_grid,
+                record, record_every, step, los_pairs, cells,
             )
             step += flew
             if step_violation:
@@ -892,7 +892,7 @@ def _advance_world(
                 continue  # every step asked for was ordinary
             # The step the run abandoned is flown below.
         any_flying, refine, outside = _commands(state, pos, status, grad, command, nf_consts, params, inv_dt,
-                                                aircraft_lanes, by_grid)
+                                                cells)
         if not any_flying:
             break
         # Step-size control at the law's singularity: where a command is saturated
@@ -914,7 +914,7 @@ def _advance_world(
         for sub in range(n_sub):
             if sub > 0:
                 any_flying, _, _ = _commands(
-                    state, pos, status, grad, command, nf_consts, params, n_sub * inv_dt, aircraft_lanes, by_grid
+                    state, pos, status, grad, command, nf_consts, params, n_sub * inv_dt, cells
                 )
                 if not any_flying:
                     break
@@ -985,13 +985,13 @@ def _advance_world(
 
             # Separation among the aircraft that flew this sub-step (one that arrived on
             # it still counts: it was in the airspace during the step).
-            if by_grid:
+            if cells is not None:
                 for i in range(n):
-                    aircraft_lanes[_GRID + cells_grid.GRID_X, i] = state[i, S_X]
-                    aircraft_lanes[_GRID + cells_grid.GRID_Y, i] = state[i, S_Y]
-                    aircraft_lanes[_GRID + cells_grid.GRID_MEMBER, i] = 1.0 if command[i, C_FLEW] == 2.0 else 0.0
-                nx, ny, width, skin = cells_grid.prepare(aircraft_lanes, _GRID, n, _cell_nm(params))
-                min_sep2, lost = cells_grid.separation(aircraft_lanes, _GRID, n, nx, ny, width, skin, min_sep2,
+                    cells[_GRID + cells_grid.GRID_X, i] = state[i, S_X]
+                    cells[_GRID + cells_grid.GRID_Y, i] = state[i, S_Y]
+                    cells[_GRID + cells_grid.GRID_MEMBER, i] = 1.0 if command[i, C_FLEW] == 2.0 else 0.0
+                nx, ny, width, skin = cells_grid.prepare(cells, _GRID, n, _cell_nm(params))
+                min_sep2, lost = cells_grid.separation(cells, _GRID, n, nx, ny, width, skin, min_sep2,
                                                        sep_min2, los_pairs, True)
                 step_violation |= lost
             else:
@@ -1050,31 +1050,25 @@ def _advance_one(
     violated: np.ndarray,
     record: np.ndarray,
     record_every: int,
+    cells=None,
 ) -> None:
     """World b of the batch: ``_advance_world`` on its slices, its outcome into the
-    per-world result arrays."""
+    per-world result arrays. ``cells``: the batch's neighbour grids (B, rows, N), or None
+    (the default: all pairs, and no grid compiled)."""
     # ``record_every`` as an int64 whatever the caller passed (a literal 1 is a type of its
     # own, and would compile ``_advance_world`` once more).
-    sep, done, bad = _advance_world(
-        state[b],
-        waypoints[b],
-        wind[b, 0],
-        wind[b, 1],
-        n_steps,
-        params,
-        grad[b],
-        command[b],
-        aircraft_lanes[b],
-        min_airspeed[b],
-        max_airspeed[b],
-        violation_steps[b],
-        worst_excursion[b],
-        steps_flown[b],
-        los_pairs[b],
-        record[b],
-        np.int64(record_every),
-        True,
-    )
+    if cells is None:
+        sep, done, bad = _advance_world(
+            state[b], waypoints[b], wind[b, 0], wind[b, 1], n_steps, params, grad[b], command[b], aircraft_lanes[b],
+            min_airspeed[b], max_airspeed[b], violation_steps[b], worst_excursion[b], steps_flown[b], los_pairs[b],
+            record[b], np.int64(record_every), True,
+        )
+    else:
+        sep, done, bad = _advance_world(
+            state[b], waypoints[b], wind[b, 0], wind[b, 1], n_steps, params, grad[b], command[b], aircraft_lanes[b],
+            min_airspeed[b], max_airspeed[b], violation_steps[b], worst_excursion[b], steps_flown[b], los_pairs[b],
+            record[b], np.int64(record_every), True, cells[b],
+        )
     min_separation[b] = sep
     steps_done[b] = done
     violated[b] = bad
@@ -1101,6 +1095,7 @@ def _advance_batch(
     violated: np.ndarray,
     record: np.ndarray,
     record_every: int,
+    cells,
 ) -> None:
     for b in prange(state.shape[0]):
         # ``b`` as an int64, as ``_advance_checked_one`` passes it: numba compiles
@@ -1108,7 +1103,7 @@ def _advance_batch(
         _advance_one(
             np.int64(b), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
             violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
-            violated, record, record_every,
+            violated, record, record_every, cells,
         )
 
 
@@ -1328,10 +1323,10 @@ def _lane_step(count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarra
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _lane_pairs_by_grid(b0: int, count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarray,
-                        aircraft_lanes: np.ndarray, los_pairs: np.ndarray, params: np.ndarray,
+                        cells: np.ndarray, los_pairs: np.ndarray, params: np.ndarray,
                         nf_consts: tuple) -> None:
-    """``_lane_step``'s two loops over pairs, through each world's neighbour grid (in its
-    ``aircraft_lanes``' rows from ``N_AIRCRAFT_LANE``), for the worlds whose lane step is
+    """``_lane_step``'s two loops over pairs, through each world's neighbour grid
+    (``cells``, B rows × N), for the worlds whose lane step is
     still ordinary: not where a pair is within the sensing radius at the start, nor where
     one is closer than the separation minimum after the move; ``W_NEW_MIN_SEP2`` exact. A
     world at a time (no SIMD lanes), in O(N) instead of O(N²); where the lane step is not
@@ -1344,20 +1339,20 @@ def _lane_pairs_by_grid(b0: int, count: int, lanes: np.ndarray, temp: np.ndarray
     for k in range(count):
         if world[W_ORDINARY, k] == 0.0:
             continue
-        cells = aircraft_lanes[b0 + k]
+        world_cells = cells[b0 + k]
         for i in range(n):
-            cells[_GRID + cells_grid.GRID_X, i] = lanes[S_X, i, k]
-            cells[_GRID + cells_grid.GRID_Y, i] = lanes[S_Y, i, k]
-            cells[_GRID + cells_grid.GRID_MEMBER, i] = 1.0
-        nx, ny, _, _ = cells_grid.prepare(cells, _GRID, n, cell_nm)
-        if cells_grid.any_within(cells, _GRID, n, nx, ny, r_sense2, inv_len):
+            world_cells[_GRID + cells_grid.GRID_X, i] = lanes[S_X, i, k]
+            world_cells[_GRID + cells_grid.GRID_Y, i] = lanes[S_Y, i, k]
+            world_cells[_GRID + cells_grid.GRID_MEMBER, i] = 1.0
+        nx, ny, _, _ = cells_grid.prepare(world_cells, _GRID, n, cell_nm)
+        if cells_grid.any_within(world_cells, _GRID, n, nx, ny, r_sense2, inv_len):
             world[W_ORDINARY, k] = 0.0
             continue
         for i in range(n):
-            cells[_GRID + cells_grid.GRID_X, i] = temp[T_X1, i, k]
-            cells[_GRID + cells_grid.GRID_Y, i] = temp[T_Y1, i, k]
-        nx, ny, width, skin = cells_grid.prepare(cells, _GRID, n, cell_nm)
-        least2, lost = cells_grid.separation(cells, _GRID, n, nx, ny, width, skin, world[W_MIN_SEP2, k],
+            world_cells[_GRID + cells_grid.GRID_X, i] = temp[T_X1, i, k]
+            world_cells[_GRID + cells_grid.GRID_Y, i] = temp[T_Y1, i, k]
+        nx, ny, width, skin = cells_grid.prepare(world_cells, _GRID, n, cell_nm)
+        least2, lost = cells_grid.separation(world_cells, _GRID, n, nx, ny, width, skin, world[W_MIN_SEP2, k],
                                              sep_min * sep_min, los_pairs[b0 + k], False)
         world[W_NEW_MIN_SEP2, k] = least2
         if lost:
@@ -1442,6 +1437,7 @@ def _fly_lanes(
     lanes: np.ndarray,
     temp: np.ndarray,
     world: np.ndarray,
+    cells,
 ) -> None:
     """Worlds b0..b1−1 of the batch flown step by step: each step by the lane step where it
     is ordinary, by ``_advance_world`` for that step where it is not; for each world the
@@ -1469,8 +1465,8 @@ def _fly_lanes(
             for field in range(N_STATE):
                 lanes[field, i, k] = state[b, i, field]
         world[W_ACTIVE, k] = 1.0
-        if aircraft_lanes.shape[1] > N_AIRCRAFT_LANE:
-            cells_grid.forget(aircraft_lanes[b], _GRID)
+        if cells is not None:
+            cells_grid.forget(cells[b], _GRID)
         world[W_MIN_SEP2, k] = NO_PAIR_SEPARATION_NM * NO_PAIR_SEPARATION_NM
         world[W_MIN_SEP_SCALAR, k] = NO_PAIR_SEPARATION_NM
         world[W_STEPS, k] = 0.0
@@ -1478,11 +1474,10 @@ def _fly_lanes(
         world[W_WIND_X, k] = wind[b, 0]
         world[W_WIND_Y, k] = wind[b, 1]
     n_record = record.shape[1]
-    pairs_by_grid = aircraft_lanes.shape[1] > N_AIRCRAFT_LANE
     for step in range(n_steps):
-        _lane_step(count, lanes, temp, world, params, nf_consts, pairs_by_grid)
-        if pairs_by_grid:
-            _lane_pairs_by_grid(b0, count, lanes, temp, world, aircraft_lanes, los_pairs, params, nf_consts)
+        _lane_step(count, lanes, temp, world, params, nf_consts, cells is not None)
+        if cells is not None:
+            _lane_pairs_by_grid(b0, count, lanes, temp, world, cells, los_pairs, params, nf_consts)
         _lane_commit(count, lanes, temp, world, params)
         _lane_outcomes(b0, count, temp, world, params, min_airspeed, max_airspeed, violation_steps, worst_excursion,
                        steps_flown)
@@ -1522,11 +1517,18 @@ def _fly_lanes(
                 # and each lane step it would take costs the transposes around it.
                 handed_over = n_record == 0
                 steps_left = n_steps - step if handed_over else 1
-                step_sep, flown, step_violation = _advance_world(
-                    rows, step_waypoints, wind[b, 0], wind[b, 1], steps_left, params, grad[b], command[b],
-                    aircraft_lanes[b], step_min, step_max, step_violations, step_worst, step_flown, step_los,
-                    no_record, record_every, True,
-                )
+                if cells is None:
+                    step_sep, flown, step_violation = _advance_world(
+                        rows, step_waypoints, wind[b, 0], wind[b, 1], steps_left, params, grad[b], command[b],
+                        aircraft_lanes[b], step_min, step_max, step_violations, step_worst, step_flown, step_los,
+                        no_record, record_every, True,
+                    )
+                else:
+                    step_sep, flown, step_violation = _advance_world(
+                        rows, step_waypoints, wind[b, 0], wind[b, 1], steps_left, params, grad[b], command[b],
+                        aircraft_lanes[b], step_min, step_max, step_violations, step_worst, step_flown, step_los,
+                        no_record, record_every, True, cells[b],
+                    )
                 for i in range(n):
                     for field in range(N_STATE):
                         lanes[field, i, k] = rows[i, field]
@@ -1598,6 +1600,7 @@ def _advance_lanes(
     temp: np.ndarray,
     world: np.ndarray,
     chunk: int,
+    cells,
 ) -> None:
     """The batch in chunks of ``chunk`` worlds (at most ``LANE_CHUNK``), the chunks in parallel."""
     n_worlds = state.shape[0]
@@ -1607,7 +1610,7 @@ def _advance_lanes(
         _fly_lanes(
             b0, min(b0 + chunk, n_worlds), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes,
             min_airspeed, max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, min_separation,
-            steps_done, violated, record, record_every, lanes[c], temp[c], world[c],
+            steps_done, violated, record, record_every, lanes[c], temp[c], world[c], cells,
         )
 
 # Outcomes of the ``_advance_checked_*`` entries.
@@ -1671,6 +1674,7 @@ def _advance_checked_one(
     violated: np.ndarray,
     record: np.ndarray,
     record_every: int,
+    cells,
 ) -> int:
     """``advance``'s compiled part for one world: the checks of the values
     (``_inputs_valid``) before anything moves, the flight, and the check that the state
@@ -1678,11 +1682,18 @@ def _advance_checked_one(
     when other processes hold the cores."""
     if not _inputs_valid(params, state, waypoints, wind):
         return _BAD_INPUT
-    _advance_one(
-        np.int64(0), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
-        violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
-        violated, record, record_every,
-    )
+    if cells is None:  # no grid compiled for None (``_advance_one``'s default, as the envs call it)
+        _advance_one(
+            np.int64(0), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed,
+            max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
+            violated, record, record_every,
+        )
+    else:
+        _advance_one(
+            np.int64(0), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed,
+            max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
+            violated, record, record_every, cells,
+        )
     if not _all_finite(state):
         return _NON_FINITE_RESULT
     return _DONE
@@ -1709,6 +1720,7 @@ def _advance_checked_batch(
     violated: np.ndarray,
     record: np.ndarray,
     record_every: int,
+    cells,
 ) -> int:
     """``_advance_checked_one`` for a batch flown by the scalar path, the worlds in parallel."""
     if not _inputs_valid(params, state, waypoints, wind):
@@ -1716,7 +1728,7 @@ def _advance_checked_batch(
     _advance_batch(
         state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
         violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record,
-        record_every,
+        record_every, cells,
     )
     if not _all_finite(state):
         return _NON_FINITE_RESULT
@@ -1748,6 +1760,7 @@ def _advance_checked_lanes(
     temp: np.ndarray,
     world: np.ndarray,
     chunk: int,
+    cells,
 ) -> int:
     """``_advance_checked_one`` for a batch flown by the lane path (k = 2 only), the chunks
     of ``chunk`` worlds in parallel."""
@@ -1756,7 +1769,7 @@ def _advance_checked_lanes(
     _advance_lanes(
         state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
         violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record,
-        record_every, lanes, temp, world, chunk,
+        record_every, lanes, temp, world, chunk, cells,
     )
     if not _all_finite(state):
         return _NON_FINITE_RESULT
@@ -1819,6 +1832,7 @@ class KernelScratch:
         self.grad = np.zeros((0, 0, 0, 2))
         self.command = np.zeros((0, 0, N_COMMAND))
         self.aircraft_lanes = np.zeros((0, N_AIRCRAFT_LANE, 0))
+        self.cells: np.ndarray | None = None
         self.lanes = np.zeros((0, N_STATE, 0, LANE_ROW))
         self.lane_temp = np.zeros((0, N_LANE_TEMP, 0, LANE_ROW))
         self.lane_world = np.zeros((0, N_LANE_WORLD, LANE_ROW))
@@ -1837,9 +1851,9 @@ class KernelScratch:
             self.command = np.zeros((n_worlds, n_aircraft, N_COMMAND))
             by_grid = self.neighbour_search == "grid" or (
                 self.neighbour_search == "auto" and n_aircraft >= GRID_MIN_AIRCRAFT)
-            # The neighbour grid's rows below the lanes' own: their presence is the kernel's switch.
-            rows = N_AIRCRAFT_LANE + (cells_grid.grid_rows(n_aircraft) if by_grid else 0)
-            self.aircraft_lanes = np.zeros((n_worlds, rows, n_aircraft))
+            self.aircraft_lanes = np.zeros((n_worlds, N_AIRCRAFT_LANE, n_aircraft))
+            # The kernel's switch: None flies all pairs (and compiles no grid).
+            self.cells = np.zeros((n_worlds, cells_grid.grid_rows(n_aircraft), n_aircraft)) if by_grid else None
             chunks = -(-n_worlds // lane_chunk) if lane_chunk > 0 else 0
             self.lanes = np.zeros((chunks, N_STATE, n_aircraft, LANE_ROW))
             self.lane_temp = np.zeros((chunks, N_LANE_TEMP, n_aircraft, LANE_ROW))
@@ -2257,11 +2271,11 @@ def advance(
     arguments = (
         state, waypoints, wind_kt, n_steps, params, grad, command, aircraft_lanes, trace.min_airspeed_kt,
         trace.max_airspeed_kt, trace.violation_steps, trace.worst_excursion_kt, trace.steps_flown, trace.los_pairs,
-        trace.min_separation_nm, trace.steps_done, trace.violated, trace.record, max(record_every, 1),
+        trace.min_separation_nm, trace.steps_done, trace.violated, trace.record, max(record_every, 1), scratch.cells,
     )
     if on_lanes:
         entry = _advance_checked_lanes
-        arguments += (scratch.lanes, scratch.lane_temp, scratch.lane_world, chunk)
+        arguments = (*arguments[:-1], scratch.lanes, scratch.lane_temp, scratch.lane_world, chunk, scratch.cells)
     elif n_worlds == 1:
         entry = _advance_checked_one
     else:

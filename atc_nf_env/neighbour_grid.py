@@ -18,11 +18,13 @@ order: the kernel flies the same bits with the grid as without (``tests/test_nei
 The grid covers the aircraft's bounding box, in at most 2 N cells (wider cells where the
 box is larger, fewer aircraft per cell being then no longer the point), so that building it
 costs O(N); aircraft outside it (none, by construction, but for rounding) are clamped into
-its border cells, which keeps the distance bounds. Its scratch is rows of the kernel's
-aircraft lanes below the lanes' own (``grid_rows``): positions, a membership flag, each
-aircraft's cell, the aircraft sorted by cell (a stable counting sort), one aircraft's
-neighbour list, and one row per row of cells holding where each cell's aircraft start in
-the sorted list (indices stored as float64, exact below 2^53). Nothing is allocated.
+its border cells, which keeps the distance bounds. The cells are a skin wider than needed,
+and a grid serves until an aircraft has moved half a skin since it was built (``prepare``):
+a step's sub-steps share one. Its scratch (``grid_rows`` rows of N, ``KernelScratch.cells``)
+holds positions, a membership flag, each aircraft's cell, the aircraft sorted by cell (a
+stable counting sort), one aircraft's neighbour list, and one row per row of cells holding
+where each cell's aircraft start in the sorted list (indices stored as float64, exact below
+2^53). Nothing is allocated.
 """
 
 from __future__ import annotations

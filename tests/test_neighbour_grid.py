@@ -42,7 +42,7 @@ def _points(draw_seed: int, n: int, spread_nm: float, kinds: int) -> np.ndarray:
 def _grid_answers(xy: np.ndarray, member: np.ndarray, params: np.ndarray, g: np.ndarray
                   ) -> tuple[list[list[int]], bool, float, np.ndarray, bool]:
     n = xy.shape[0]
-    base = kernel.N_AIRCRAFT_LANE
+    base = 0
     g[base + grid.GRID_X, :n] = xy[:, 0]
     g[base + grid.GRID_Y, :n] = xy[:, 1]
     g[base + grid.GRID_MEMBER, :n] = member
@@ -106,7 +106,7 @@ def test_grid_answers_as_all_pairs(seed: int, n: int, spread_nm: float, kinds: i
     params = SimConfig().to_params(1500.0)
     xy = _points(seed, n, spread_nm, kinds)
     member = (rng.random(n) < 0.85).astype(float)
-    g = np.zeros((kernel.N_AIRCRAFT_LANE + grid.grid_rows(n), n))
+    g = np.zeros((grid.grid_rows(n), n))
     for _ in range(moves + 1):
         got = _grid_answers(xy, member, params, g)
         want = _all_pairs_answers(xy, member, params)
@@ -187,11 +187,16 @@ def test_kernel_flies_the_same_bits_with_the_grid(seed: int, n: int, n_worlds: i
 
 
 def test_scratch_search_choice() -> None:
-    """"auto" gives the grid's rows from ``GRID_MIN_AIRCRAFT`` aircraft; a bad name is refused."""
+    """"auto" gives the grid from ``GRID_MIN_AIRCRAFT`` aircraft; a bad name is refused."""
     small, large = kernel.GRID_MIN_AIRCRAFT - 1, kernel.GRID_MIN_AIRCRAFT
-    assert KernelScratch().get(1, small)[2].shape[1] == kernel.N_AIRCRAFT_LANE
-    assert KernelScratch().get(1, large)[2].shape[1] == kernel.N_AIRCRAFT_LANE + grid.grid_rows(large)
-    assert KernelScratch("grid").get(1, 2)[2].shape[1] == kernel.N_AIRCRAFT_LANE + grid.grid_rows(2)
-    assert KernelScratch("all_pairs").get(1, 200)[2].shape[1] == kernel.N_AIRCRAFT_LANE
+
+    def cells(scratch: KernelScratch, n: int) -> np.ndarray | None:
+        scratch.get(2, n)
+        return scratch.cells
+
+    assert cells(KernelScratch(), small) is None
+    assert cells(KernelScratch(), large).shape == (2, grid.grid_rows(large), large)
+    assert cells(KernelScratch("grid"), 2).shape == (2, grid.grid_rows(2), 2)
+    assert cells(KernelScratch("all_pairs"), 200) is None
     with pytest.raises(ValueError, match="neighbour_search"):
         KernelScratch("kd-tree")
