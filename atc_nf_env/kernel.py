@@ -18,6 +18,13 @@ same arithmetic; a world flies bit for bit the same trajectory either way. On th
 path (one world, small batches, the safety filter's prediction) the same ordinary steps
 are flown by ``_ordinary_run``, the lane step's arithmetic over the world's aircraft without
 the neighbour loops and the guards' branches, the other steps by the general path.
+Pairs of aircraft (the NF's neighbours within the sensing radius, whether a step is
+ordinary, the losses of separation and the trace's smallest separation, exact over every
+pair) are found over all pairs, or, where ``advance``'s scratch gives a world the neighbour
+grid (``KernelScratch``: from ``GRID_MIN_AIRCRAFT`` aircraft), through a uniform grid of
+cells (``neighbour_grid``) in O(N) a step: the same neighbours in the same order, the same
+bits (``tests/test_neighbour_grid.py``). The scaling with N is in BENCHMARKS.md
+(``bench/bench_kernel.py --scaling``).
 
 Physics per aircraft i, integrated at ``dt_s`` with the second-order Adams-Bashforth
 scheme (explicit Euler on the first step under a new waypoint) (paper (1), (5)):

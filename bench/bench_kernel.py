@@ -308,7 +308,7 @@ def scaling_text(rows: list[dict[str, float]], rounds: int, seeds: int) -> str:
             f"{row['grid_step_ns']:.0f} | {row['all_pairs_eval_ns']:.0f} | {row['grid_eval_ns']:.0f} | "
             f"{ratio:.2f}× |"
         )
-    worst = max(ratios.values())
+    at_most = {b: ratios[b, SCALING_N[-1]] for b in SCALING_B}
     return "\n".join([
         "## Kernel scaling with the number of aircraft",
         "",
@@ -325,10 +325,12 @@ def scaling_text(rows: list[dict[str, float]], rounds: int, seeds: int) -> str:
         "",
         *table,
         "",
-        "Target: the cost per aircraft-evaluation at N = 100 within 2× of N = 4's: "
-        + ("met in this run" if max(ratios[b, SCALING_N[-1]] for b in SCALING_B) <= 2.0 else "not met in this run")
-        + f" (largest ratio over the rows {worst:.2f}×). The cost per aircraft-step is not: it grows with the "
-        "sub-steps per step, which the grid does not change.",
+        f"Target: the default's cost per aircraft-evaluation at N = {SCALING_N[-1]} within 2× of N = "
+        f"{SCALING_N[0]}'s: " + ("met" if max(at_most.values()) <= 2.0 else "not met") + " in this run ("
+        + ", ".join(f"B = {b}: {ratio:.2f}×" for b, ratio in at_most.items()) + "). The cost per aircraft-step "
+        "is not: it grows with the sub-steps per step, which the grid does not change (they are the law's, "
+        "guard 8). Rows between measure how the encounters' mix of ordinary steps (cheap, no pair in range) and "
+        "sub-stepped ones moves the cost, more than N does.",
     ])
 
 
