@@ -200,3 +200,27 @@ def test_scratch_search_choice() -> None:
     assert cells(KernelScratch("all_pairs"), 200) is None
     with pytest.raises(ValueError, match="neighbour_search"):
         KernelScratch("kd-tree")
+
+
+def test_aircraft_exactly_on_cell_borders() -> None:
+    """Aircraft placed on the cells' borders of the grid their box gets (and a sensing radius
+    to either side of them, and a hair inside): the same answers as over all pairs."""
+    n = 40
+    params = SimConfig().to_params(1500.0)
+    cell_nm = max(SENSING_NM, SEPARATION_NM)
+    g = np.zeros((grid.grid_rows(n), n))
+    xy = np.zeros((n, 2))
+    xy[1] = (300.0, 300.0)  # the box: (0, 0) to (300, 300)
+    g[grid.GRID_X, :n], g[grid.GRID_Y, :n], g[grid.GRID_MEMBER, :n] = xy[:, 0], xy[:, 1], 1.0
+    _, _, width, _ = grid.prepare(g, 0, n, cell_nm)
+    k = np.arange(n - 2) % 5 + 1
+    offsets = np.array([0.0, SENSING_NM, -SENSING_NM, 1e-12, -1e-12])[np.arange(n - 2) // 5 % 5]
+    xy[2:, 0] = k * width + offsets
+    xy[2:, 1] = (np.arange(n - 2) % 3) * width
+    grid.forget(g, 0)
+    got = _grid_answers(xy, np.ones(n), params, g)
+    assert g[grid.GRID_META + 3, 0] == width  # the same box, so the same cells
+    want = _all_pairs_answers(xy, np.ones(n), params)
+    assert got[0] == want[0] and got[1] == want[1] and got[2] == want[2] and got[4] == want[4]
+    assert np.array_equal(got[3], want[3])
+    assert want[1]  # pairs within the sensing radius across a border exist
