@@ -18,6 +18,13 @@ same arithmetic; a world flies bit for bit the same trajectory either way. On th
 path (one world, small batches, the safety filter's prediction) the same ordinary steps
 are flown by ``_ordinary_run``, the lane step's arithmetic over the world's aircraft without
 the neighbour loops and the guards' branches, the other steps by the general path.
+Pairs of aircraft (the NF's neighbours within the sensing radius, whether a step is
+ordinary, the losses of separation and the trace's smallest separation, exact over every
+pair) are found over all pairs, or, where ``advance``'s scratch gives a world the neighbour
+grid (``KernelScratch``: from ``GRID_MIN_AIRCRAFT`` aircraft), through a uniform grid of
+cells (``neighbour_grid``) in O(N) a step: the same neighbours in the same order, the same
+bits (``tests/test_neighbour_grid.py``). The scaling with N is in BENCHMARKS.md
+(``bench/bench_kernel.py --scaling``).
 
 Physics per aircraft i, integrated at ``dt_s`` with the second-order Adams-Bashforth
 scheme (explicit Euler on the first step under a new waypoint) (paper (1), (5)):
@@ -156,6 +163,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import get_num_threads, njit, prange
 
+from atc_nf_env import neighbour_grid as cells_grid
 from atc_nf_env import nf, trig
 from atc_nf_env.nf import FAST_MATH_FLAGS, NO_REFERENCE_COUNTS
 from atc_nf_env.nf import (
@@ -171,6 +179,7 @@ from atc_nf_env.nf import (
     P_K_Z,
     P_LENGTH,
     P_P_FLOOR,
+    P_R_SENSE,
     P_R_WORLD,
     P_RADIUS,
     P_SEP_MIN,
@@ -237,6 +246,11 @@ N_AIRCRAFT_FIELDS = 19
 (A_GX, A_GY, A_ARG_X, A_ATAN2, A_SIN, A_COS, A_X1, A_Y1, A_HEADING1, A_VX, A_VY, A_OMEGA, A_U, A_THETA_NH1,
  A_STEP_NM, A_VIOLATED, A_INDEX) = range(19, 36)
 N_AIRCRAFT_LANE = 36
+#: First row of the neighbour grid's own scratch (``cells``, ``neighbour_grid.grid_rows``).
+_GRID = 0
+#: Fewest aircraft for which ``KernelScratch`` gives a world the neighbour grid: below it the
+#: loops over all pairs are as fast or faster (``bench/bench_kernel.py``, the scaling table).
+GRID_MIN_AIRCRAFT = 24
 
 # Record fields (optional per-step recording).
 R_X, R_Y, R_HEADING, R_AIRSPEED, R_FLEW = 0, 1, 2, 3, 4  # R_FLEW: 1 if it flew that step
@@ -250,6 +264,13 @@ NO_PAIR_SEPARATION_NM = 1.0e9
 
 _HALF_PI = 0.5 * math.pi
 _TWO_PI = 2.0 * math.pi
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
+def _cell_nm(params: np.ndarray) -> float:
+    """Narrowest cell of the neighbour grid, nm: the sensing radius (the NF's neighbours) or
+    the separation minimum (the losses of separation), whichever is larger."""
+    return max(params[P_R_SENSE], params[P_SEP_MIN])
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
@@ -328,9 +349,12 @@ def _commands(
     nf_consts: tuple,
     params: np.ndarray,
     inv_dt: float,
+    cells,
 ) -> tuple[bool, bool, bool]:
     """The law's commands (5a)-(5b) of every flying aircraft from the current positions,
-    into ``command``. Returns (any aircraft flying, the step is to be refined: a command
+    into ``command``; the neighbours found over all pairs (``cells`` None), or through the
+    neighbour grid in ``cells`` (the same neighbours in the same order, so the same bits).
+    Returns (any aircraft flying, the step is to be refined: a command
     saturated at the cap (guard 2), under the right-hand rule (guard 9) or with a 1/P_i
     term above ``substep_from_kt`` (guard 8), any command outside the envelope)."""
     n = state.shape[0]
@@ -345,6 +369,16 @@ def _commands(
     substep_from = params[nf.P_SUBSTEP_FROM]
     u_min = params[P_U_MIN]
     u_max = params[P_U_MAX]
+    inv_len_nf = nf_consts[0]
+    r_sense2 = nf_consts[7]
+    nx = 0
+    ny = 0
+    if cells is not None:
+        for i in range(n):
+            cells[_GRID + cells_grid.GRID_X, i] = state[i, S_X]
+            cells[_GRID + cells_grid.GRID_Y, i] = state[i, S_Y]
+            cells[_GRID + cells_grid.GRID_MEMBER, i] = 1.0 if status[i] == FLYING else 0.0
+        nx, ny, _, _ = cells_grid.prepare(cells, _GRID, n, _cell_nm(params))
     any_flying = False
     # Pass 1, from the positions at the start of the step: every flying aircraft's
     # gradients, feedback airspeed −sgn(P_i) F_i and heading rate.
@@ -357,7 +391,12 @@ def _commands(
         theta_d = state[i, S_THETA_D]
         cos_d = state[i, S_COS_D]
         sin_d = state[i, S_SIN_D]
-        _, n_near = nf.nf_along_direction(i, pos, status, wx, wy, cos_d, sin_d, nf_consts, grad[i])
+        if cells is not None:
+            n_near = cells_grid.neighbours(cells, _GRID, i, nx, ny, r_sense2, inv_len_nf)
+            nf.nf_along_neighbours(i, pos, cells[_GRID + cells_grid.GRID_LIST], n_near, wx, wy, cos_d, sin_d,
+                                   nf_consts, grad[i])
+        else:
+            _, n_near = nf.nf_along_direction(i, pos, status, wx, wy, cos_d, sin_d, nf_consts, grad[i])
         command[i, C_NEAR] = n_near
         gx = grad[i, i, 0]
         gy = grad[i, i, 1]
@@ -398,7 +437,13 @@ def _commands(
         if status[i] != FLYING:
             continue
         dphi_dt = 0.0
-        for j in range(n if command[i, C_NEAR] > 0 else 0):
+        # Over the neighbours only: a farther aircraft's gradient row is zero (its term ±0).
+        m = n if command[i, C_NEAR] > 0 else 0
+        if cells is not None:
+            if m > 0:
+                m = cells_grid.neighbours(cells, _GRID, i, nx, ny, r_sense2, inv_len_nf)
+        for q in range(m):
+            j = q if cells is None else int(cells[_GRID + cells_grid.GRID_LIST, q])
             if j == i or status[j] != FLYING:
                 continue
             along_j = grad[i, j, 0] * command[j, C_COS] + grad[i, j, 1] * command[j, C_SIN]
@@ -417,7 +462,12 @@ def _commands(
             if status[i] != FLYING:
                 continue
             dphi_dt = 0.0
-            for j in range(n if command[i, C_NEAR] > 0 else 0):
+            m = n if command[i, C_NEAR] > 0 else 0
+            if cells is not None:
+                if m > 0:
+                    m = cells_grid.neighbours(cells, _GRID, i, nx, ny, r_sense2, inv_len_nf)
+            for q in range(m):
+                j = q if cells is None else int(cells[_GRID + cells_grid.GRID_LIST, q])
                 if j == i or status[j] != FLYING:
                     continue
                 along_j = grad[i, j, 0] * command[j, C_COS] + grad[i, j, 1] * command[j, C_SIN]
@@ -543,6 +593,8 @@ def _ordinary_run(
     record: np.ndarray,
     record_every: int,
     step0: int,
+    los_pairs: np.ndarray,
+    cells,
 ) -> tuple[int, bool, float, bool]:
     """As many consecutive integration steps of one world as are ordinary, up to
     ``max_steps``, by the lane step's arithmetic: every flying aircraft without a flying
@@ -552,6 +604,8 @@ def _ordinary_run(
     column per aircraft) from the first of these steps to the last, and the state is
     written back once; a step that proves not ordinary is abandoned with nothing written
     (the scalar path flies it). ``step0``: steps done before this call (for the record).
+    ``cells``: the neighbour grid's scratch, through which the pairs are found (``los_pairs``:
+    not written), or None: over all pairs; the same bits.
 
     Returns (steps flown; whether a step left the envelope; the smallest squared
     separation so far, nm²; whether it stopped at a step that is not ordinary, which the
@@ -597,13 +651,18 @@ def _ordinary_run(
         # No two flying aircraft within the sensing radius, in the NF's own arithmetic (its
         # test is symmetric in the pair: q_j − q_i is exactly −(q_i − q_j)).
         near = False
-        for a in range(count):
-            xa = lanes[A_X, a] * inv_len
-            ya = lanes[A_Y, a] * inv_len
-            for b in range(a + 1, count):
-                rx = xa - lanes[A_X, b] * inv_len
-                ry = ya - lanes[A_Y, b] * inv_len
-                near |= rx * rx + ry * ry < r_sense2
+        if cells is not None:
+            _fill_grid(cells, lanes, A_X, A_Y, count, n)
+            nx, ny, _, _ = cells_grid.prepare(cells, _GRID, n, _cell_nm(params))
+            near = cells_grid.any_within(cells, _GRID, n, nx, ny, r_sense2, inv_len)
+        else:
+            for a in range(count):
+                xa = lanes[A_X, a] * inv_len
+                ya = lanes[A_Y, a] * inv_len
+                for b in range(a + 1, count):
+                    rx = xa - lanes[A_X, b] * inv_len
+                    ry = ya - lanes[A_Y, b] * inv_len
+                    near |= rx * rx + ry * ry < r_sense2
         if near:
             abandoned = True
             break
@@ -654,13 +713,19 @@ def _ordinary_run(
             break
         new_min_sep2 = min_sep2
         lost = False
-        for a in range(count):
-            for b in range(a + 1, count):
-                sx = lanes[A_X1, a] - lanes[A_X1, b]
-                sy = lanes[A_Y1, a] - lanes[A_Y1, b]
-                sep2 = sx * sx + sy * sy
-                lost |= sep2 < sep_min * sep_min
-                new_min_sep2 = min(new_min_sep2, sep2)
+        if cells is not None:
+            _fill_grid(cells, lanes, A_X1, A_Y1, count, n)
+            nx, ny, width, skin = cells_grid.prepare(cells, _GRID, n, _cell_nm(params))
+            new_min_sep2, lost = cells_grid.separation(cells, _GRID, n, nx, ny, width, skin, min_sep2,
+                                                       sep_min * sep_min, los_pairs, False)
+        else:
+            for a in range(count):
+                for b in range(a + 1, count):
+                    sx = lanes[A_X1, a] - lanes[A_X1, b]
+                    sy = lanes[A_Y1, a] - lanes[A_Y1, b]
+                    sep2 = sx * sx + sy * sy
+                    lost |= sep2 < sep_min * sep_min
+                    new_min_sep2 = min(new_min_sep2, sep2)
         if lost:
             abandoned = True
             break
@@ -703,6 +768,20 @@ def _ordinary_run(
         # The last step flown, as the one-step form left the state and the command's columns.
         _commit_aircraft_lanes(state, command, lanes, count, n, True)
     return flown, violated, min_sep2, abandoned
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
+def _fill_grid(cells: np.ndarray, lanes: np.ndarray, row_x: int, row_y: int, count: int, n: int) -> None:
+    """The neighbour grid's members: the aircraft of ``lanes``' first ``count`` lanes
+    (``A_INDEX``) at the positions of rows ``row_x``, ``row_y`` (nm), by aircraft index (of
+    ``n``)."""
+    for i in range(n):
+        cells[_GRID + cells_grid.GRID_MEMBER, i] = 0.0
+    for k in range(count):
+        i = int(lanes[A_INDEX, k])
+        cells[_GRID + cells_grid.GRID_X, i] = lanes[row_x, k]
+        cells[_GRID + cells_grid.GRID_Y, i] = lanes[row_y, k]
+        cells[_GRID + cells_grid.GRID_MEMBER, i] = 1.0
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
@@ -765,11 +844,16 @@ def _advance_world(
     record: np.ndarray,
     record_every: int,
     ordinary_steps: bool,
+    cells=None,
 ) -> tuple[float, int, bool]:
     """Advance one world by n_steps; returns (min separation, steps done, violated).
     ``aircraft_lanes`` (N_AIRCRAFT_LANE, N): scratch of the runs of ordinary steps.
     ``ordinary_steps``: fly the ordinary steps by ``_ordinary_run`` (every caller; False
-    flies every step by the general path, which the tests compare it with)."""
+    flies every step by the general path, which the tests compare it with).
+    ``cells``: the neighbour grid's scratch (``neighbour_grid.grid_rows``, N), through which
+    the pairs are found, the same bits as over all pairs in O(N) a step; or None (the
+    default): over all pairs. None is a type of its own to numba, which then compiles no
+    grid at all (``_advance_one`` passes it on)."""
     n = state.shape[0]
     dt = params[P_DT]
     u_min = params[P_U_MIN]
@@ -788,6 +872,8 @@ def _advance_world(
 
     _begin_world(state, waypoints, min_airspeed, max_airspeed, violation_steps, worst_excursion, steps_flown,
                  los_pairs, record)
+    if cells is not None:
+        cells_grid.forget(cells, _GRID)
     min_sep2 = NO_PAIR_SEPARATION_NM * NO_PAIR_SEPARATION_NM
     sep_min2 = sep_min * sep_min
     violated = False
@@ -802,7 +888,7 @@ def _advance_world(
             flew, step_violation, min_sep2, abandoned = _ordinary_run(
                 state, command, aircraft_lanes, wind_x, wind_y, params, nf_consts, min_sep2, min_airspeed,
                 max_airspeed, violation_steps, worst_excursion, steps_flown, n_steps - step, stop_on_violation,
-                record, record_every, step,
+                record, record_every, step, los_pairs, cells,
             )
             step += flew
             if step_violation:
@@ -812,7 +898,8 @@ def _advance_world(
             if not abandoned:
                 continue  # every step asked for was ordinary
             # The step the run abandoned is flown below.
-        any_flying, refine, outside = _commands(state, pos, status, grad, command, nf_consts, params, inv_dt)
+        any_flying, refine, outside = _commands(state, pos, status, grad, command, nf_consts, params, inv_dt,
+                                                cells)
         if not any_flying:
             break
         # Step-size control at the law's singularity: where a command is saturated
@@ -834,7 +921,7 @@ def _advance_world(
         for sub in range(n_sub):
             if sub > 0:
                 any_flying, _, _ = _commands(
-                    state, pos, status, grad, command, nf_consts, params, n_sub * inv_dt
+                    state, pos, status, grad, command, nf_consts, params, n_sub * inv_dt, cells
                 )
                 if not any_flying:
                     break
@@ -905,21 +992,31 @@ def _advance_world(
 
             # Separation among the aircraft that flew this sub-step (one that arrived on
             # it still counts: it was in the airspace during the step).
-            for i in range(n):
-                if command[i, C_FLEW] != 2.0:
-                    continue
-                for j in range(i + 1, n):
-                    if command[j, C_FLEW] != 2.0:
+            if cells is not None:
+                for i in range(n):
+                    cells[_GRID + cells_grid.GRID_X, i] = state[i, S_X]
+                    cells[_GRID + cells_grid.GRID_Y, i] = state[i, S_Y]
+                    cells[_GRID + cells_grid.GRID_MEMBER, i] = 1.0 if command[i, C_FLEW] == 2.0 else 0.0
+                nx, ny, width, skin = cells_grid.prepare(cells, _GRID, n, _cell_nm(params))
+                min_sep2, lost = cells_grid.separation(cells, _GRID, n, nx, ny, width, skin, min_sep2,
+                                                       sep_min2, los_pairs, True)
+                step_violation |= lost
+            else:
+                for i in range(n):
+                    if command[i, C_FLEW] != 2.0:
                         continue
-                    sx = state[i, S_X] - state[j, S_X]
-                    sy = state[i, S_Y] - state[j, S_Y]
-                    sep2 = sx * sx + sy * sy
-                    if sep2 < min_sep2:
-                        min_sep2 = sep2
-                    if sep2 < sep_min2:
-                        los_pairs[i, j] = 1
-                        los_pairs[j, i] = 1
-                        step_violation = True
+                    for j in range(i + 1, n):
+                        if command[j, C_FLEW] != 2.0:
+                            continue
+                        sx = state[i, S_X] - state[j, S_X]
+                        sy = state[i, S_Y] - state[j, S_Y]
+                        sep2 = sx * sx + sy * sy
+                        if sep2 < min_sep2:
+                            min_sep2 = sep2
+                        if sep2 < sep_min2:
+                            los_pairs[i, j] = 1
+                            los_pairs[j, i] = 1
+                            step_violation = True
             for i in range(n):
                 if command[i, C_FLEW] == 2.0:
                     command[i, C_FLEW] = 1.0
@@ -960,31 +1057,25 @@ def _advance_one(
     violated: np.ndarray,
     record: np.ndarray,
     record_every: int,
+    cells=None,
 ) -> None:
     """World b of the batch: ``_advance_world`` on its slices, its outcome into the
-    per-world result arrays."""
+    per-world result arrays. ``cells``: the batch's neighbour grids (B, rows, N), or None
+    (the default: all pairs, and no grid compiled)."""
     # ``record_every`` as an int64 whatever the caller passed (a literal 1 is a type of its
     # own, and would compile ``_advance_world`` once more).
-    sep, done, bad = _advance_world(
-        state[b],
-        waypoints[b],
-        wind[b, 0],
-        wind[b, 1],
-        n_steps,
-        params,
-        grad[b],
-        command[b],
-        aircraft_lanes[b],
-        min_airspeed[b],
-        max_airspeed[b],
-        violation_steps[b],
-        worst_excursion[b],
-        steps_flown[b],
-        los_pairs[b],
-        record[b],
-        np.int64(record_every),
-        True,
-    )
+    if cells is None:
+        sep, done, bad = _advance_world(
+            state[b], waypoints[b], wind[b, 0], wind[b, 1], n_steps, params, grad[b], command[b], aircraft_lanes[b],
+            min_airspeed[b], max_airspeed[b], violation_steps[b], worst_excursion[b], steps_flown[b], los_pairs[b],
+            record[b], np.int64(record_every), True,
+        )
+    else:
+        sep, done, bad = _advance_world(
+            state[b], waypoints[b], wind[b, 0], wind[b, 1], n_steps, params, grad[b], command[b], aircraft_lanes[b],
+            min_airspeed[b], max_airspeed[b], violation_steps[b], worst_excursion[b], steps_flown[b], los_pairs[b],
+            record[b], np.int64(record_every), True, cells[b],
+        )
     min_separation[b] = sep
     steps_done[b] = done
     violated[b] = bad
@@ -1011,6 +1102,7 @@ def _advance_batch(
     violated: np.ndarray,
     record: np.ndarray,
     record_every: int,
+    cells,
 ) -> None:
     for b in prange(state.shape[0]):
         # ``b`` as an int64, as ``_advance_checked_one`` passes it: numba compiles
@@ -1018,7 +1110,7 @@ def _advance_batch(
         _advance_one(
             np.int64(b), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
             violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
-            violated, record, record_every,
+            violated, record, record_every, cells,
         )
 
 
@@ -1127,10 +1219,11 @@ def _lane_move(u: float, cos_h: float, sin_h: float, wind_x: float, wind_y: floa
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
 def _lane_step(count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarray, params: np.ndarray,
-               nf_consts: tuple) -> None:
+               nf_consts: tuple, pairs_by_grid: bool) -> None:
     """The lane step of the first ``count`` worlds of a chunk, ``lanes`` (N_STATE, N,
     LANE_CHUNK), into ``temp`` (N_LANE_TEMP, N, LANE_CHUNK), and ``world[W_ORDINARY]`` set
-    where it is the world's step. Indices from 0 over a chunk's own buffers: numba then
+    where it is the world's step. With ``pairs_by_grid`` its two loops over pairs are left
+    to ``_lane_pairs_by_grid``, which the caller runs next. Indices from 0 over a chunk's own buffers: numba then
     knows them non-negative and emits no wraparound branch, which would keep LLVM from
     vectorizing the loops."""
     n = lanes.shape[1]
@@ -1156,7 +1249,7 @@ def _lane_step(count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarra
             ordinary[b] = flag if status[b] == FLYING else 0.0
     # No neighbour within the sensing radius, in the NF's own arithmetic (its test is
     # symmetric in the pair: q_j − q_i is exactly −(q_i − q_j)).
-    for i in range(n):
+    for i in range(0 if pairs_by_grid else n):
         for j in range(i + 1, n):
             for b in range(count):
                 rx = lanes[S_X, i, b] * inv_len - lanes[S_X, j, b] * inv_len
@@ -1223,7 +1316,7 @@ def _lane_step(count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarra
     new_min = world[W_NEW_MIN_SEP2]
     for b in range(count):
         new_min[b] = world[W_MIN_SEP2, b]
-    for i in range(n):
+    for i in range(0 if pairs_by_grid else n):
         for j in range(i + 1, n):
             for b in range(count):
                 sx = temp[T_X1, i, b] - temp[T_X1, j, b]
@@ -1233,6 +1326,44 @@ def _lane_step(count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarra
                 flag = ordinary[b]
                 new_min[b] = sep2 if sep2 < least else least
                 ordinary[b] = 0.0 if sep2 < sep_min2 else flag
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
+def _lane_pairs_by_grid(b0: int, count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarray,
+                        cells: np.ndarray, los_pairs: np.ndarray, params: np.ndarray,
+                        nf_consts: tuple) -> None:
+    """``_lane_step``'s two loops over pairs, through each world's neighbour grid
+    (``cells``, B rows × N), for the worlds whose lane step is
+    still ordinary: not where a pair is within the sensing radius at the start, nor where
+    one is closer than the separation minimum after the move; ``W_NEW_MIN_SEP2`` exact. A
+    world at a time (no SIMD lanes), in O(N) instead of O(N²); where the lane step is not
+    the world's, what it left is never read."""
+    n = lanes.shape[1]
+    inv_len = nf_consts[0]
+    r_sense2 = nf_consts[7]
+    cell_nm = _cell_nm(params)
+    sep_min = params[P_SEP_MIN]
+    for k in range(count):
+        if world[W_ORDINARY, k] == 0.0:
+            continue
+        world_cells = cells[b0 + k]
+        for i in range(n):
+            world_cells[_GRID + cells_grid.GRID_X, i] = lanes[S_X, i, k]
+            world_cells[_GRID + cells_grid.GRID_Y, i] = lanes[S_Y, i, k]
+            world_cells[_GRID + cells_grid.GRID_MEMBER, i] = 1.0
+        nx, ny, _, _ = cells_grid.prepare(world_cells, _GRID, n, cell_nm)
+        if cells_grid.any_within(world_cells, _GRID, n, nx, ny, r_sense2, inv_len):
+            world[W_ORDINARY, k] = 0.0
+            continue
+        for i in range(n):
+            world_cells[_GRID + cells_grid.GRID_X, i] = temp[T_X1, i, k]
+            world_cells[_GRID + cells_grid.GRID_Y, i] = temp[T_Y1, i, k]
+        nx, ny, width, skin = cells_grid.prepare(world_cells, _GRID, n, cell_nm)
+        least2, lost = cells_grid.separation(world_cells, _GRID, n, nx, ny, width, skin, world[W_MIN_SEP2, k],
+                                             sep_min * sep_min, los_pairs[b0 + k], False)
+        world[W_NEW_MIN_SEP2, k] = least2
+        if lost:
+            world[W_ORDINARY, k] = 0.0
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
@@ -1313,6 +1444,7 @@ def _fly_lanes(
     lanes: np.ndarray,
     temp: np.ndarray,
     world: np.ndarray,
+    cells,
 ) -> None:
     """Worlds b0..b1−1 of the batch flown step by step: each step by the lane step where it
     is ordinary, by ``_advance_world`` for that step where it is not; for each world the
@@ -1340,6 +1472,8 @@ def _fly_lanes(
             for field in range(N_STATE):
                 lanes[field, i, k] = state[b, i, field]
         world[W_ACTIVE, k] = 1.0
+        if cells is not None:
+            cells_grid.forget(cells[b], _GRID)
         world[W_MIN_SEP2, k] = NO_PAIR_SEPARATION_NM * NO_PAIR_SEPARATION_NM
         world[W_MIN_SEP_SCALAR, k] = NO_PAIR_SEPARATION_NM
         world[W_STEPS, k] = 0.0
@@ -1348,7 +1482,9 @@ def _fly_lanes(
         world[W_WIND_Y, k] = wind[b, 1]
     n_record = record.shape[1]
     for step in range(n_steps):
-        _lane_step(count, lanes, temp, world, params, nf_consts)
+        _lane_step(count, lanes, temp, world, params, nf_consts, cells is not None)
+        if cells is not None:
+            _lane_pairs_by_grid(b0, count, lanes, temp, world, cells, los_pairs, params, nf_consts)
         _lane_commit(count, lanes, temp, world, params)
         _lane_outcomes(b0, count, temp, world, params, min_airspeed, max_airspeed, violation_steps, worst_excursion,
                        steps_flown)
@@ -1388,11 +1524,18 @@ def _fly_lanes(
                 # and each lane step it would take costs the transposes around it.
                 handed_over = n_record == 0
                 steps_left = n_steps - step if handed_over else 1
-                step_sep, flown, step_violation = _advance_world(
-                    rows, step_waypoints, wind[b, 0], wind[b, 1], steps_left, params, grad[b], command[b],
-                    aircraft_lanes[b], step_min, step_max, step_violations, step_worst, step_flown, step_los,
-                    no_record, record_every, True,
-                )
+                if cells is None:
+                    step_sep, flown, step_violation = _advance_world(
+                        rows, step_waypoints, wind[b, 0], wind[b, 1], steps_left, params, grad[b], command[b],
+                        aircraft_lanes[b], step_min, step_max, step_violations, step_worst, step_flown, step_los,
+                        no_record, record_every, True,
+                    )
+                else:
+                    step_sep, flown, step_violation = _advance_world(
+                        rows, step_waypoints, wind[b, 0], wind[b, 1], steps_left, params, grad[b], command[b],
+                        aircraft_lanes[b], step_min, step_max, step_violations, step_worst, step_flown, step_los,
+                        no_record, record_every, True, cells[b],
+                    )
                 for i in range(n):
                     for field in range(N_STATE):
                         lanes[field, i, k] = rows[i, field]
@@ -1464,6 +1607,7 @@ def _advance_lanes(
     temp: np.ndarray,
     world: np.ndarray,
     chunk: int,
+    cells,
 ) -> None:
     """The batch in chunks of ``chunk`` worlds (at most ``LANE_CHUNK``), the chunks in parallel."""
     n_worlds = state.shape[0]
@@ -1473,7 +1617,7 @@ def _advance_lanes(
         _fly_lanes(
             b0, min(b0 + chunk, n_worlds), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes,
             min_airspeed, max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, min_separation,
-            steps_done, violated, record, record_every, lanes[c], temp[c], world[c],
+            steps_done, violated, record, record_every, lanes[c], temp[c], world[c], cells,
         )
 
 # Outcomes of the ``_advance_checked_*`` entries.
@@ -1537,6 +1681,7 @@ def _advance_checked_one(
     violated: np.ndarray,
     record: np.ndarray,
     record_every: int,
+    cells,
 ) -> int:
     """``advance``'s compiled part for one world: the checks of the values
     (``_inputs_valid``) before anything moves, the flight, and the check that the state
@@ -1544,11 +1689,18 @@ def _advance_checked_one(
     when other processes hold the cores."""
     if not _inputs_valid(params, state, waypoints, wind):
         return _BAD_INPUT
-    _advance_one(
-        np.int64(0), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
-        violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
-        violated, record, record_every,
-    )
+    if cells is None:  # no grid compiled for None (``_advance_one``'s default, as the envs call it)
+        _advance_one(
+            np.int64(0), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed,
+            max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
+            violated, record, record_every,
+        )
+    else:
+        _advance_one(
+            np.int64(0), state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed,
+            max_airspeed, violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done,
+            violated, record, record_every, cells,
+        )
     if not _all_finite(state):
         return _NON_FINITE_RESULT
     return _DONE
@@ -1575,6 +1727,7 @@ def _advance_checked_batch(
     violated: np.ndarray,
     record: np.ndarray,
     record_every: int,
+    cells,
 ) -> int:
     """``_advance_checked_one`` for a batch flown by the scalar path, the worlds in parallel."""
     if not _inputs_valid(params, state, waypoints, wind):
@@ -1582,7 +1735,7 @@ def _advance_checked_batch(
     _advance_batch(
         state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
         violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record,
-        record_every,
+        record_every, cells,
     )
     if not _all_finite(state):
         return _NON_FINITE_RESULT
@@ -1614,6 +1767,7 @@ def _advance_checked_lanes(
     temp: np.ndarray,
     world: np.ndarray,
     chunk: int,
+    cells,
 ) -> int:
     """``_advance_checked_one`` for a batch flown by the lane path (k = 2 only), the chunks
     of ``chunk`` worlds in parallel."""
@@ -1622,7 +1776,7 @@ def _advance_checked_lanes(
     _advance_lanes(
         state, waypoints, wind, n_steps, params, grad, command, aircraft_lanes, min_airspeed, max_airspeed,
         violation_steps, worst_excursion, steps_flown, los_pairs, min_separation, steps_done, violated, record,
-        record_every, lanes, temp, world, chunk,
+        record_every, lanes, temp, world, chunk, cells,
     )
     if not _all_finite(state):
         return _NON_FINITE_RESULT
@@ -1661,16 +1815,31 @@ class Trace:
     record: np.ndarray
 
 
+#: The ways ``KernelScratch`` lets the kernel find pairs of aircraft (all give the same bits).
+NEIGHBOUR_SEARCHES = ("auto", "grid", "all_pairs")
+
+
 class KernelScratch:
     """Scratch buffers of the kernel, reused across calls of the same batch shape, and the
     last two calls' ``Trace`` objects, reused once their callers have dropped them
-    (``trace``)."""
+    (``trace``).
 
-    def __init__(self) -> None:
+    ``neighbour_search``: how the kernel finds the pairs of aircraft within the sensing
+    radius and the closest pair, "auto" (the neighbour grid from ``GRID_MIN_AIRCRAFT``
+    aircraft, all pairs below), "grid" or "all_pairs"; every choice flies the same bits,
+    only the time differs (O(N) against O(N²) a step)."""
+
+    def __init__(self, neighbour_search: str = "auto") -> None:
+        if neighbour_search not in NEIGHBOUR_SEARCHES:
+            raise ValueError(
+                f"neighbour_search = {neighbour_search!r}: allowed: {', '.join(map(repr, NEIGHBOUR_SEARCHES))}"
+            )
+        self.neighbour_search = neighbour_search
         self._shape: tuple[int, int, int] = (-1, -1, -1)
         self.grad = np.zeros((0, 0, 0, 2))
         self.command = np.zeros((0, 0, N_COMMAND))
         self.aircraft_lanes = np.zeros((0, N_AIRCRAFT_LANE, 0))
+        self.cells: np.ndarray | None = None
         self.lanes = np.zeros((0, N_STATE, 0, LANE_ROW))
         self.lane_temp = np.zeros((0, N_LANE_TEMP, 0, LANE_ROW))
         self.lane_world = np.zeros((0, N_LANE_WORLD, LANE_ROW))
@@ -1687,7 +1856,11 @@ class KernelScratch:
         if self._shape != (n_worlds, n_aircraft, lane_chunk):
             self.grad = np.zeros((n_worlds, n_aircraft, n_aircraft, 2))
             self.command = np.zeros((n_worlds, n_aircraft, N_COMMAND))
+            by_grid = self.neighbour_search == "grid" or (
+                self.neighbour_search == "auto" and n_aircraft >= GRID_MIN_AIRCRAFT)
             self.aircraft_lanes = np.zeros((n_worlds, N_AIRCRAFT_LANE, n_aircraft))
+            # The kernel's switch: None flies all pairs (and compiles no grid).
+            self.cells = np.zeros((n_worlds, cells_grid.grid_rows(n_aircraft), n_aircraft)) if by_grid else None
             chunks = -(-n_worlds // lane_chunk) if lane_chunk > 0 else 0
             self.lanes = np.zeros((chunks, N_STATE, n_aircraft, LANE_ROW))
             self.lane_temp = np.zeros((chunks, N_LANE_TEMP, n_aircraft, LANE_ROW))
@@ -2105,11 +2278,11 @@ def advance(
     arguments = (
         state, waypoints, wind_kt, n_steps, params, grad, command, aircraft_lanes, trace.min_airspeed_kt,
         trace.max_airspeed_kt, trace.violation_steps, trace.worst_excursion_kt, trace.steps_flown, trace.los_pairs,
-        trace.min_separation_nm, trace.steps_done, trace.violated, trace.record, max(record_every, 1),
+        trace.min_separation_nm, trace.steps_done, trace.violated, trace.record, max(record_every, 1), scratch.cells,
     )
     if on_lanes:
         entry = _advance_checked_lanes
-        arguments += (scratch.lanes, scratch.lane_temp, scratch.lane_world, chunk)
+        arguments = (*arguments[:-1], scratch.lanes, scratch.lane_temp, scratch.lane_world, chunk, scratch.cells)
     elif n_worlds == 1:
         entry = _advance_checked_one
     else:

@@ -73,6 +73,7 @@ fi
 
 if [[ $WHAT == all || $WHAT == benchmarks ]]; then
     run bench-kernel "$PYTHON" bench/bench_kernel.py --write
+    run bench-kernel-scaling "$PYTHON" bench/bench_kernel.py --scaling --write
     run bench-compile "$PYTHON" bench/bench_compile.py --write
     run bench-envs "$PYTHON" bench/bench_envs.py --write
     run bench-mpc "$PYTHON" bench/bench_mpc.py --seeds 5 --repeats 2 --write
