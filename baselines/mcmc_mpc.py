@@ -493,6 +493,7 @@ class MCMCMPC:
         # the candidates' batch shape keeps its own.
         self._start_scratch = kernel.KernelScratch()
         self._stalled = np.zeros(0, dtype=bool)
+        self._ever_stalled = np.zeros(0, dtype=bool)
         self._progress_history: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
         self._params: np.ndarray | None = None
         self._check_params: np.ndarray | None = None
@@ -706,7 +707,7 @@ class MCMCMPC:
             "cluster_size_mean": float(np.mean([d.cluster_size for d in self.decisions if d.cluster_size > 0]))
             if any(d.cluster_size > 0 for d in self.decisions) else None,
             # The progress rule: aircraft it ever held on a recovery waypoint, and the decisions it did.
-            "stalled_aircraft": int(self._ever_stalled.sum()) if self._ever_stalled.size else 0,
+            "stalled_aircraft": int(self._ever_stalled.sum()),
             "recovery_decisions": int(sum(d.recovering > 0 for d in self.decisions)),
         }
 

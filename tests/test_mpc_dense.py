@@ -166,3 +166,12 @@ def test_the_dense_study_prints_one_row_per_setting_and_scenario(capsys, monkeyp
     with pytest.raises(SystemExit):
         study.main(["--settings", "fast"])
     assert "allowed: joint, dense" in capsys.readouterr().err
+
+
+def test_episode_info_has_the_same_keys_before_reset_and_after_an_episode():
+    policy = MCMCMPC(extractions=50, sampling="clusters", progress_fraction=0.5)
+    before = policy.episode_info()
+    run_episode(policy, converging(3), seed=0, max_time_s=900.0)
+    after = policy.episode_info()
+    assert set(before) == set(after)
+    assert before["stalled_aircraft"] == 0 and before["cluster_decisions"] == 0
