@@ -87,5 +87,6 @@ if [[ $WHAT == all || $WHAT == benchmarks ]]; then
     run layout-probe "$PYTHON" bench/layout_probe.py --rounds 31 --write
     run nf-floor "$PYTHON" bench/nf_floor_study.py --shield stream-30,stream-60 --write
     run mpc-dense "$PYTHON" bench/mpc_dense_study.py --runs 20 --workers 2 --write
+    run generalization-grid "$PYTHON" bench/generalization_grid.py --runs 20 --workers 2 --write --figure docs/figures/generalization_grid.png
 fi
 echo "regenerated ($WHAT) on build $("$PYTHON" -c 'from atc_nf_env import build; print(build.fingerprint())')"
