@@ -88,5 +88,6 @@ if [[ $WHAT == all || $WHAT == benchmarks ]]; then
     run nf-floor "$PYTHON" bench/nf_floor_study.py --shield stream-30,stream-60 --write
     run mpc-dense "$PYTHON" bench/mpc_dense_study.py --runs 20 --workers 2 --write
     run generalization-grid "$PYTHON" bench/generalization_grid.py --runs 20 --workers 2 --write --figure docs/figures/generalization_grid.png
+    run offline-bc "$PYTHON" bench/offline_bc_study.py --seeds 3 --episodes 24 --runs 50 --write
 fi
 echo "regenerated ($WHAT) on build $("$PYTHON" -c 'from atc_nf_env import build; print(build.fingerprint())')"

@@ -6,9 +6,9 @@
   of its own) is skipped, saying which; ``make test-integrations`` runs those blocks in
   their library's venv, with ``ATC_NF_SNIPPETS_OF`` naming the library (then only the
   blocks that name it run, and the test fails if there are none).
-- ``bash`` blocks: each command runs in an empty folder in which ``agents/`` is the
-  repository's (the shipped models' relative paths are how users run them from a
-  clone). ``atc-nf`` and ``python`` commands run as written, except the ones in SCALED
+- ``bash`` blocks: each command runs in an empty folder in which ``agents/`` and
+  ``examples/`` are the repository's (the shipped models' and the examples' relative
+  paths are how users run them from a clone); Minari datasets go to a folder inside it. ``atc-nf`` and ``python`` commands run as written, except the ones in SCALED
   (run with fewer runs, each with its reason) and SKIPPED (not run here, each with its
   reason). A command of another kind, or one in neither list that cannot run as
   written, fails the test: a new snippet must be classified.
@@ -58,6 +58,17 @@ SCALED: dict[str, tuple[str, str]] = {
         "python -m agents.benchmark --models agents/models/imitation_dagger.zip --runs 1 --scenarios converging-4"
         " --workers 1 --no-progress",
         "the default flies the NF, the MPC and the model 300 times on three scenarios"),
+    "atc-nf dataset --policy mpc --task converging-4 --episodes 24 --dataset-id atc-nf/converging-4/mpc-v0": (
+        "atc-nf dataset --policy mpc --task converging-4 --episodes 2 --dataset-id atc-nf/converging-4/mpc-v0"
+        " --no-progress",
+        "24 MPC episodes take a minute; 2 go through the same recording and Minari writer"),
+    "python examples/bc_from_minari.py --dataset-id atc-nf/converging-4/mpc-v0 --out bc_offline.zip": (
+        "python examples/bc_from_minari.py --dataset-id atc-nf/converging-4/mpc-v0 --out bc_offline.zip --epochs 2",
+        "2 epochs on the 2-episode dataset above write the same kind of model file"),
+    "atc-nf benchmark --policy bc_offline.zip --task converging-4 --split validation --runs 50": (
+        "atc-nf benchmark --policy bc_offline.zip --task converging-4 --split validation --runs 2 --workers 1"
+        " --no-progress",
+        "2 validation runs (and the MPC's on the same seeds) give the same card"),
     "python -m agents.zoo --write": (
         "python -m agents.zoo",
         "--write rewrites the committed agents/README.md; test_zoo_table_is_generated checks it instead"),
@@ -125,8 +136,9 @@ def _env() -> dict[str, str]:
 
 
 def _run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run(argv, cwd=cwd, env=_env(), capture_output=True, text=True, timeout=TIMEOUT_S,
-                          check=False)
+    # Datasets a snippet records land in its own folder, never in the user's ~/.minari.
+    env = {**_env(), "MINARI_DATASETS_PATH": str(cwd / "minari-datasets")}
+    return subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True, timeout=TIMEOUT_S, check=False)
 
 
 @functools.cache
@@ -186,6 +198,7 @@ _PASSED: set[str] = set()
 @pytest.mark.parametrize("code", _blocks("bash"))
 def test_bash_block_runs(code: str, tmp_path: Path) -> None:
     (tmp_path / "agents").symlink_to(ROOT / "agents")
+    (tmp_path / "examples").symlink_to(ROOT / "examples")
     ran = []
     for command in shell_commands(code):
         if command in SKIPPED_N or any(command.startswith(p) for p in SKIPPED_PREFIXES):
