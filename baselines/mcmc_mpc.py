@@ -847,8 +847,10 @@ class MCMCMPC:
         config = self._config
         assert config is not None
         if self.settings.constraint_check == "every-step":
-            outside = (trace.min_airspeed_kt[0] < config.airspeed_min_kt) | (
-                trace.max_airspeed_kt[0] > config.airspeed_max_kt)
+            # Only aircraft that flew: an empty stream slot keeps airspeed 0 and its parked
+            # position would pull the aircraft around it into the cluster.
+            outside = (trace.steps_flown[0] > 0) & ((trace.min_airspeed_kt[0] < config.airspeed_min_kt) | (
+                trace.max_airspeed_kt[0] > config.airspeed_max_kt))
             pairs = trace.los_pairs[0] > 0
         else:
             flying = state[:, S_STATUS] == FLYING
@@ -994,8 +996,10 @@ class MCMCMPC:
         if not math.isclose(view.time_s, self._predicted_time_s, abs_tol=1e-6):
             return
         # Only aircraft that flew the whole period were predicted: in a traffic stream an
-        # aircraft that entered since has no prediction to compare with.
-        flying = view.flying & self._predicted_flying
+        # aircraft that entered since has no prediction to compare with, also where it took
+        # the slot of one that arrived or left during the period (its time flown restarted).
+        whole_period = view.state[:, S_TIME] >= self.settings.period_s - 1e-6
+        flying = view.flying & self._predicted_flying & whole_period
         if not flying.any():
             return
         error_nm = view.positions[flying] - self._predicted_positions[flying]

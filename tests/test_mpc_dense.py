@@ -16,9 +16,9 @@ import pytest
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import run_episode
 from atc_nf_env.scenarios import Scenario, converging
-from atc_nf_env.kernel import ARRIVED, S_STATUS, S_TIME
+from atc_nf_env.kernel import ARRIVED, S_AIRSPEED, S_STATUS, S_TIME, S_X, S_Y
 from atc_nf_env.simulation import Simulation, WorldView
-from baselines import MCMCMPC
+from baselines import MCMCMPC, mcmc_mpc
 
 
 def _circling() -> Scenario:
@@ -126,6 +126,54 @@ def test_the_progress_rule_judges_a_slot_only_over_a_window_its_flight_flew_whol
     state[1, S_STATUS] = ARRIVED
     policy._update_progress(WorldView(time_s=6 * period, state=state.copy(), scenario=scenario))
     assert not policy._stalled[1]
+
+
+def test_a_slots_new_flight_is_never_read_as_the_old_ones_drift():
+    """The wind estimate compares where the aircraft are with where the last decision
+    predicted them; a stream slot that took a new flight during the period (its time flown
+    restarted) has no prediction: reading it as drift once made a 164-kt estimate of a
+    12-kt wind on stream-30."""
+    scenario = converging(3)
+    policy = MCMCMPC(extractions=10)
+    policy.reset(scenario, SimConfig(), seed=0)
+    period = policy.settings.period_s
+    state = Simulation(scenario).view().state.copy()
+    state[:, S_TIME] = 2 * period
+    drift_nm = np.array([1.0, -0.5])  # every old flight drifted this much: a 12-kt wind
+    for new_flight in (False, True):
+        policy._wind_estimate_kt = np.zeros(2)
+        policy._predicted_positions = state[:, S_X : S_Y + 1].copy()
+        policy._predicted_flying = np.ones(3, dtype=bool)
+        policy._predicted_time_s = 2 * period
+        now = state.copy()
+        now[:, S_X : S_Y + 1] += drift_nm
+        if new_flight:
+            now[0, S_TIME] = 60.0  # slot 0: a flight that entered a minute ago, 300 nm away
+            now[0, S_X] += 300.0
+        policy._update_wind_estimate(WorldView(time_s=2 * period, state=now, scenario=scenario))
+        assert np.allclose(policy._wind_estimate_kt, drift_nm * 3600.0 / period)
+
+
+def test_an_empty_stream_slot_is_never_part_of_a_conflict():
+    """An empty slot keeps airspeed 0 and a parked position: it breaks no constraint and
+    pulls nobody into a conflict's cluster."""
+    scenario = _two_groups()
+    policy = MCMCMPC(extractions=10, sampling="clusters")
+    policy.reset(scenario, SimConfig(), seed=0)
+    view = Simulation(scenario).view()
+    state = view.state.copy()
+    state[2, S_STATUS] = ARRIVED  # slot 2 empty, as a stream leaves it
+    state[2, S_AIRSPEED] = 0.0
+    state[2, S_X : S_Y + 1] = state[3, S_X : S_Y + 1] + [5.0, 0.0]  # parked beside aircraft 3
+    world = WorldView(time_s=view.time_s, state=state, scenario=scenario)
+    policy._config, policy._params = policy._prediction_models[1]
+    states, waypoints = mcmc_mpc._candidate_starts(state, policy._start_waypoints(world)[None])
+    trace = mcmc_mpc._advance_candidates(states, waypoints, np.zeros((1, 2)), policy.settings.period_s,
+                                         policy._params, policy._start_scratch)
+    assert trace.steps_flown[0, 2] == 0 and trace.min_airspeed_kt[0, 2] == 0.0
+    assert not policy._involved(states[0], trace)[2]
+    cluster = policy._start_cluster(world, np.zeros(4, dtype=bool))
+    assert cluster is not None and cluster.tolist() == [True, True, False, False]  # the head-on pair alone
 
 
 @pytest.mark.parametrize(
