@@ -17,6 +17,12 @@ aircraft flew more than 1.5× its direct distance, and the largest such ratio; t
 and 99th-percentile decision time (warm), and the mean's ratio to the same setting's on
 converging-4 measured in the same run; the seeds that failed any of these.
 
+With ``--streams`` (e.g. ``stream-30,stream-60,stream-120``) it flies traffic streams too,
+``--stream-runs`` runs each from ``--stream-first-seed``, into a table of their own: runs
+with a flight that left the workspace, with a loss of separation, outside the envelope,
+with a fallback; throughput, delay against the direct flight, the most airborne at once,
+the decision times. ``--scenarios ''`` skips the encounters.
+
 Run: python bench/mpc_dense_study.py --scenarios converging-12,converging-16,random-12,random-16 --runs 20
      (--write puts the table into BENCHMARKS.md; --workers W flies runs in W processes, which
      makes the decision times those of W processes sharing the machine)
@@ -68,6 +74,87 @@ def _fly_packed(job: tuple[str, str, int]) -> dict:
     return fly(*job)
 
 
+def fly_stream(setting: str, stream_name: str, seed: int) -> dict:
+    """One run of a traffic stream: its per-run outcomes, the stream's metrics and the
+    decision times (s)."""
+    from atc_nf_env.episode import run_episode
+    from baselines.mcmc_mpc import MCMCMPC
+
+    policy = MCMCMPC(**SETTINGS[setting])
+    result = run_episode(policy, stream_name, seed=seed)
+    metrics = result.metrics
+    stream = metrics.stream
+    return {
+        "seed": seed,
+        "home": bool(metrics.success),  # no flight left the workspace
+        "los": metrics.los_count > 0,
+        "excursion": float(metrics.worst_excursion_kt),
+        "fallbacks": int(policy.episode_info()["fallbacks"]),
+        "throughput_per_hour": float(stream["throughput_per_hour"]),
+        "delay_s": stream["delay_s"]["mean"],
+        "max_airborne": int(stream["max_airborne"]),
+        "completed": int(stream["flights_completed"]),
+        "entered": int(stream["flights_entered"]),
+        "decision_s": [float(t) for t in result.decision_s],
+    }
+
+
+def _fly_stream_packed(job: tuple[str, str, int]) -> dict:
+    return fly_stream(*job)
+
+
+def stream_study(setting: str, stream_name: str, seeds: range, workers: int) -> dict:
+    """Per-run outcomes of ``setting`` on the traffic stream ``stream_name`` over ``seeds``."""
+    jobs = [(setting, stream_name, seed) for seed in seeds]
+    if workers > 1:
+        with ProcessPoolExecutor(workers) as pool:
+            runs = list(pool.map(_fly_stream_packed, jobs))
+    else:
+        runs = [fly_stream(*job) for job in jobs]
+    decisions = np.concatenate([r["decision_s"] for r in runs])
+    delays = [r["delay_s"] for r in runs if r["delay_s"] is not None]
+    return {
+        "runs": len(runs),
+        "left": sum(not r["home"] for r in runs),
+        "los": sum(r["los"] for r in runs),
+        "outside": sum(r["excursion"] > 0 for r in runs),
+        "worst": max(r["excursion"] for r in runs),
+        "fallback_runs": sum(r["fallbacks"] > 0 for r in runs),
+        "fallbacks": sum(r["fallbacks"] for r in runs),
+        "decisions": int(decisions.size),
+        "throughput": float(np.mean([r["throughput_per_hour"] for r in runs])),
+        "delay_s": float(np.mean(delays)) if delays else None,
+        "max_airborne": max(r["max_airborne"] for r in runs),
+        "completed": sum(r["completed"] for r in runs),
+        "entered": sum(r["entered"] for r in runs),
+        "decision_mean_ms": 1e3 * float(decisions.mean()),
+        "decision_p99_ms": 1e3 * float(np.percentile(decisions, 99)),
+        "failed": [r["seed"] for r in runs if not r["home"] or r["los"] or r["excursion"] > 0 or r["fallbacks"]],
+    }
+
+
+def stream_section(settings: list[str], streams: list[str], seeds: range, workers: int) -> str:
+    rows = [
+        "| setting | stream | runs | runs with a flight that left | runs with LoS | runs outside envelope (worst kt) "
+        "| runs with a fallback (fallbacks of decisions) | flights completed / entered | throughput /h "
+        "| delay s | max airborne | decision mean / p99 (ms) | seeds failing any |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for setting in settings:
+        for stream in streams:
+            r = stream_study(setting, stream, seeds, workers)
+            failed = " ".join(map(str, r["failed"][:4])) + (" …" if len(r["failed"]) > 4 else "")
+            delay = "–" if r["delay_s"] is None else f"{r['delay_s']:.0f}"
+            rows.append(
+                f"| {setting} | {stream} | {r['runs']} | {r['left']} | {r['los']} | {r['outside']} ({r['worst']:.0f}) "
+                f"| {r['fallback_runs']} ({r['fallbacks']} of {r['decisions']}) | {r['completed']} / {r['entered']} "
+                f"| {r['throughput']:.1f} | {delay} | {r['max_airborne']} "
+                f"| {r['decision_mean_ms']:.0f} / {r['decision_p99_ms']:.0f} | {failed or '—'} |"
+            )
+            print(rows[-1], flush=True)
+    return "\n".join(rows)
+
+
 def study(setting: str, scenario_name: str, seeds: range, workers: int) -> dict:
     """Per-run outcomes of ``setting`` on ``scenario_name`` over ``seeds``."""
     jobs = [(setting, scenario_name, seed) for seed in seeds]
@@ -104,6 +191,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=int, default=20)
     parser.add_argument("--first-seed", type=int, default=1_100_000,
                         help="seeds first-seed .. first-seed + runs - 1 (default: seeds no development run used)")
+    parser.add_argument("--streams", default="", help="traffic streams to fly too, e.g. stream-30,stream-60")
+    parser.add_argument("--stream-runs", type=int, default=3)
+    parser.add_argument("--stream-first-seed", type=int, default=3_100_000_000,
+                        help="seeds of the streams (default: in the stream tasks' training range, never flown)")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--write", action="store_true", help="write the table into BENCHMARKS.md")
     args = parser.parse_args(argv)
@@ -111,9 +202,38 @@ def main(argv: list[str] | None = None) -> int:
     unknown = sorted(set(settings) - set(SETTINGS))
     if unknown:
         parser.error(f"--settings {','.join(unknown)}: allowed: {', '.join(SETTINGS)}")
-    if args.runs < 1 or args.workers < 1 or args.first_seed < 0:
-        parser.error("--runs and --workers must be >= 1, --first-seed >= 0")
+    if args.runs < 1 or args.workers < 1 or args.first_seed < 0 or args.stream_runs < 1 or args.stream_first_seed < 0:
+        parser.error("--runs, --stream-runs and --workers must be >= 1, --first-seed and --stream-first-seed >= 0")
     seeds = range(args.first_seed, args.first_seed + args.runs)
+    scenarios = [s for s in args.scenarios.split(",") if s]
+    streams = [s for s in args.streams.split(",") if s]
+    status = 0
+    if scenarios:
+        status = encounter_table(args, settings, scenarios, seeds)
+    if streams:
+        stream_seeds = range(args.stream_first_seed, args.stream_first_seed + args.stream_runs)
+        rows = stream_section(settings, streams, stream_seeds, args.workers)
+        command = (f"python bench/mpc_dense_study.py --settings {','.join(settings)} --scenarios '' --streams "
+                   f"{args.streams} --stream-runs {args.stream_runs} --stream-first-seed {args.stream_first_seed} "
+                   f"--workers {args.workers}")
+        text = "\n".join([
+            "## MCMC-MPC on traffic streams",
+            "",
+            f"`{command}` — `baselines.MCMCMPC` in the settings above, seeds {stream_seeds.start}–"
+            f"{stream_seeds.stop - 1}, σ = 5.17 m/s, 2 h of traffic each; outcomes per run (a flight that left: "
+            "it left the workspace instead of arriving; outside the envelope: any integration step outside "
+            "[366, 540] kt; a fallback: a decision without a feasible candidate). Throughput: flights arrived per "
+            "hour (the sector starts empty), the mean over runs; delay: flight time minus the direct flight's "
+            "(straight line at 454 kt), s, over the flights that arrived. Decision times warm, in this run.",
+            "",
+            rows,
+        ])
+        status = publish("mpc-streams", text, args.write) or status
+    return status
+
+
+def encounter_table(args: argparse.Namespace, settings: list[str], scenarios: list[str], seeds: range) -> int:
+    from _report import publish
     rows = [
         "| setting | scenario | runs | every aircraft home | runs with LoS | runs outside envelope (worst kt) "
         f"| runs with a fallback (fallbacks) | runs with a path > {DETOUR_LIMIT}× direct (largest) "
@@ -122,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
     ]
     for setting in settings:
         reference = study(setting, REFERENCE_SCENARIO, seeds, args.workers)
-        for scenario in [REFERENCE_SCENARIO] + [s for s in args.scenarios.split(",") if s]:
+        for scenario in [REFERENCE_SCENARIO] + scenarios:
             r = reference if scenario == REFERENCE_SCENARIO else study(setting, scenario, seeds, args.workers)
             failed = " ".join(map(str, r["failed"][:8])) + (" …" if len(r["failed"]) > 8 else "")
             rows.append(

@@ -214,6 +214,12 @@ def test_the_dense_study_prints_one_row_per_setting_and_scenario(capsys, monkeyp
     with pytest.raises(SystemExit):
         study.main(["--settings", "fast"])
     assert "allowed: joint, dense" in capsys.readouterr().err
+    # Streams only: one row per setting and stream, in a section of their own.
+    assert study.main(["--scenarios", "", "--settings", "dense", "--streams", "stream-30-20min",
+                       "--stream-runs", "1"]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("| dense | stream-30-20min | 1 |")]
+    assert len(rows) == 2 and "MCMC-MPC on traffic streams" in out and "converging" not in out
 
 
 def test_episode_info_has_the_same_keys_before_reset_and_after_an_episode():
