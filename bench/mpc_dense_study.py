@@ -196,6 +196,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stream-first-seed", type=int, default=3_100_000_000,
                         help="seeds of the streams (default: in the stream tasks' training range, never flown)")
     parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--section", default="mpc-dense",
+                        help="BENCHMARKS.md section of the encounters' table (another name keeps the default's)")
     parser.add_argument("--write", action="store_true", help="write the table into BENCHMARKS.md")
     args = parser.parse_args(argv)
     settings = [s for s in args.settings.split(",") if s]
@@ -233,7 +235,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def encounter_table(args: argparse.Namespace, settings: list[str], scenarios: list[str], seeds: range) -> int:
-    from _report import publish
+    from _report import machine, publish
+
+    from atc_nf_env import build
     rows = [
         "| setting | scenario | runs | every aircraft home | runs with LoS | runs outside envelope (worst kt) "
         f"| runs with a fallback (fallbacks) | runs with a path > {DETOUR_LIMIT}× direct (largest) "
@@ -253,19 +257,23 @@ def encounter_table(args: argparse.Namespace, settings: list[str], scenarios: li
             )
             print(rows[-1], flush=True)
     command = (f"python bench/mpc_dense_study.py --settings {','.join(settings)} --scenarios {args.scenarios} "
-               f"--runs {args.runs} --first-seed {args.first_seed} --workers {args.workers}")
+               f"--runs {args.runs} --first-seed {args.first_seed} --workers {args.workers}"
+               + ("" if args.section == "mpc-dense" else f" --section {args.section}"))
+    title = "MCMC-MPC in dense traffic" + ("" if args.section == "mpc-dense" else f": {', '.join(scenarios)}, "
+                                                                                 f"{args.runs} runs")
     described = "; ".join(f"{name}: {', '.join(f'{k}={v!r}' for k, v in SETTINGS[name].items()) or 'the defaults'}"
                           for name in settings)
     text = "\n".join([
-        "## MCMC-MPC in dense traffic",
+        f"## {title}",
         "",
-        f"`{command}` — `baselines.MCMCMPC` ({described}), seeds {seeds.start}–{seeds.stop - 1}, σ = 5.17 m/s, "
+        f"`{command}` ({machine()}, build `{build.fingerprint()}`) — `baselines.MCMCMPC` ({described}), seeds "
+        f"{seeds.start}–{seeds.stop - 1}, σ = 5.17 m/s, "
         "4-h limit; outcomes per run (outside the envelope: any integration step outside [366, 540] kt; a "
         "fallback: a decision without a feasible candidate). Decision times warm, in this run.",
         "",
         *rows,
     ])
-    return publish("mpc-dense", text, args.write)
+    return publish(args.section, text, args.write)
 
 
 if __name__ == "__main__":
