@@ -34,6 +34,7 @@ import argparse
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -74,6 +75,14 @@ def _fly_packed(job: tuple[str, str, int]) -> dict:
     return fly(*job)
 
 
+def fly_all(packed: Callable[[tuple[str, str, int]], dict], jobs: list[tuple[str, str, int]], workers: int) -> list[dict]:
+    """``packed`` over ``jobs``, in ``workers`` processes (in this one when 1), in order."""
+    if workers > 1:
+        with ProcessPoolExecutor(workers) as pool:
+            return list(pool.map(packed, jobs))
+    return [packed(job) for job in jobs]
+
+
 def fly_stream(setting: str, stream_name: str, seed: int) -> dict:
     """One run of a traffic stream: its per-run outcomes, the stream's metrics and the
     decision times (s)."""
@@ -105,12 +114,7 @@ def _fly_stream_packed(job: tuple[str, str, int]) -> dict:
 
 def stream_study(setting: str, stream_name: str, seeds: range, workers: int) -> dict:
     """Per-run outcomes of ``setting`` on the traffic stream ``stream_name`` over ``seeds``."""
-    jobs = [(setting, stream_name, seed) for seed in seeds]
-    if workers > 1:
-        with ProcessPoolExecutor(workers) as pool:
-            runs = list(pool.map(_fly_stream_packed, jobs))
-    else:
-        runs = [fly_stream(*job) for job in jobs]
+    runs = fly_all(_fly_stream_packed, [(setting, stream_name, seed) for seed in seeds], workers)
     decisions = np.concatenate([r["decision_s"] for r in runs])
     delays = [r["delay_s"] for r in runs if r["delay_s"] is not None]
     return {
@@ -157,12 +161,7 @@ def stream_section(settings: list[str], streams: list[str], seeds: range, worker
 
 def study(setting: str, scenario_name: str, seeds: range, workers: int) -> dict:
     """Per-run outcomes of ``setting`` on ``scenario_name`` over ``seeds``."""
-    jobs = [(setting, scenario_name, seed) for seed in seeds]
-    if workers > 1:
-        with ProcessPoolExecutor(workers) as pool:
-            runs = list(pool.map(_fly_packed, jobs))
-    else:
-        runs = [fly(*job) for job in jobs]
+    runs = fly_all(_fly_packed, [(setting, scenario_name, seed) for seed in seeds], workers)
     decisions = np.concatenate([r["decision_s"] for r in runs])
     failed = [r["seed"] for r in runs
               if not r["home"] or r["los"] or r["excursion"] > 0 or r["fallbacks"] or r["detour"] > DETOUR_LIMIT]
