@@ -223,7 +223,7 @@ PROPOSALS = ("homing", "paper")
 CONSTRAINT_CHECKS = ("every-step", "sampling-instants")
 ACCEPTANCES = ("standard", "table-i")
 SEARCHES = ("lazy", "exhaustive")
-SAMPLINGS = ("joint", "clusters")
+SAMPLINGS = ("joint", "clusters", "per-cluster")
 
 #: The default margin inside the airspeed envelope that "homing" predicts with, kt.
 HOMING_ENVELOPE_MARGIN_KT = 4.0
@@ -387,6 +387,11 @@ class MPCSettings:
                 f"sampling = {self.sampling!r}, progress_fraction = {self.progress_fraction!r}: the conflict "
                 "clusters and the progress rule need proposal='homing' (proposal='paper' is Table I as printed)"
             )
+        if self.sampling == "per-cluster" and self.constraint_check != "every-step":
+            raise ValueError(
+                f"sampling = 'per-cluster' with constraint_check = {self.constraint_check!r}: the clusters are "
+                "found at integration-step resolution, so the chains must check every step ('every-step')"
+            )
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
@@ -412,6 +417,25 @@ class DecisionRecord:
     cluster_size: int = 0
     #: Aircraft the progress rule held on their recovery waypoint at this decision.
     recovering: int = 0
+    #: ``sampling="per-cluster"``: the independent conflict clusters the chain's start
+    #: showed, each searched by a chain of its own (0: the start was feasible).
+    clusters: int = 0
+
+
+@dataclass
+class _SearchResult:
+    """What one search (``MCMCMPC._search``) chose: the waypoints (N, 2) nm and the
+    positions after one period (N, 2) nm of the applied candidate, and how it got there."""
+
+    applied: np.ndarray
+    applied_after_first: np.ndarray
+    fallback: bool
+    cost_nm: float
+    accepted: int
+    rounds: int
+    breach_predicted: bool
+    first_fraction: float | None
+    cluster_size: int
 
 
 def metropolis_hastings_best(
@@ -541,6 +565,11 @@ class MCMCMPC:
                 (narrowed, narrowed.to_params(scenario.workspace_radius_nm, stop_on_violation=stop))
             )
         self._config, self._params = self._prediction_models[0]
+        # sampling="per-cluster" flies the chain's start through the whole horizon, past its
+        # violations, to see every conflict: the same prediction without the stop.
+        self._survey_params = [params.copy() for _, params in self._prediction_models]
+        for params in self._survey_params:
+            params[nf.P_STOP_ON_VIOLATION] = 0.0
         # Every kernel path the candidates' batches can take, compiled (or loaded) now: a
         # first compilation inside a decision would be timed as the decision.
         kernel.load_paths(initial_state(scenario)[0], self._params)
@@ -569,14 +598,47 @@ class MCMCMPC:
         flying = view.flying
         self._update_progress(view)
         recovering = self._stalled & flying
+        n_clusters = 0
+        if s.sampling == "per-cluster":
+            result, n_clusters = self._search_per_cluster(view, recovering)
+        else:
+            # Which aircraft each round samples: all of them (joint), or, under "clusters" when
+            # the chain's start breaks a constraint, the conflict cluster around those involved.
+            cluster = self._start_cluster(view, recovering) if s.sampling == "clusters" else None
+            result = self._search(view, recovering, cluster)
+        self.decisions.append(
+            DecisionRecord(
+                time_s=view.time_s,
+                feasible_fraction=result.first_fraction,
+                fallback=result.fallback,
+                cost_nm=result.cost_nm,
+                chain_acceptance=result.accepted / max(s.extractions - 1, 1),
+                rounds=result.rounds,
+                applied_breach_predicted=result.breach_predicted,
+                cluster_size=result.cluster_size,
+                recovering=int(recovering.sum()),
+                clusters=n_clusters,
+            )
+        )
+        waypoints = view.waypoints.copy()
+        waypoints[flying] = result.applied[flying]
+        self._predicted_positions = result.applied_after_first.copy()
+        self._predicted_flying = flying.copy()
+        self._predicted_time_s = view.time_s + s.period_s
+        return waypoints
+
+    def _search(
+        self, view: WorldView, recovering: np.ndarray, cluster: np.ndarray | None, start: np.ndarray | None = None
+    ) -> _SearchResult:
+        """One decision's rounds of the chain over the aircraft flying in ``view``: every one
+        of them (``cluster`` None) or the cluster's, the others keeping the chain's start
+        (Θ_0, or ``start`` (N, 2) nm); the applied candidate, or the fallback."""
+        s = self.settings
+        flying = view.flying
         rounds = 1 + (s.search_rounds if s.proposal == "homing" else 0)
         tried: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         first_fraction: float | None = None
         chain: tuple[int, int] | None = None
-        # Which aircraft each round samples: all of them (joint), or, under "clusters" when the
-        # chain's start breaks a constraint, the conflict cluster around the aircraft involved.
-        cluster = self._start_cluster(view, recovering) if s.sampling == "clusters" else None
-        start: np.ndarray | None = None  # the chain's start, when a repair replaced Θ_0
         repairs = 0
         round_index = 0
         attempts = 0
@@ -628,47 +690,29 @@ class MCMCMPC:
                         continue
             round_index += 1
         uniforms = self._rng.random(s.extractions)
-        breach_predicted = False
         if any_feasible:
             if chain is None:
                 best, accepted, _ = metropolis_hastings_best(costs, log_g, uniforms, s.cost_exponent, s.acceptance)
             else:
                 best, accepted = chain
-            fallback = False
-            applied = proposals[best]
-            applied_after_first = after_first[best]
-        else:
-            # Every round failed: fly the candidate (of any round) that stayed feasible
-            # longest, ties broken by how far its waypoints leave the aircraft from home.
-            accepted = 0
-            proposals = np.concatenate([t[0] for t in tried])
-            survived = np.concatenate([t[1] for t in tried])
-            after_first = np.concatenate([t[2] for t in tried])
-            distance = self._remaining_distance_of(proposals, view)
-            best = int(np.lexsort((distance, -survived))[0])
-            fallback = True
-            applied = proposals[best]
-            applied_after_first = after_first[best]
-            breach_predicted = bool(survived[best] < self._units_per_period())
-        self.decisions.append(
-            DecisionRecord(
-                time_s=view.time_s,
-                feasible_fraction=first_fraction,
-                fallback=fallback,
-                cost_nm=float(costs[best]) if not fallback else math.inf,
-                chain_acceptance=accepted / max(s.extractions - 1, 1),
-                rounds=len(tried),
-                applied_breach_predicted=breach_predicted,
-                cluster_size=0 if cluster is None else int(cluster.sum()),
-                recovering=int(recovering.sum()),
+            return _SearchResult(
+                applied=proposals[best], applied_after_first=after_first[best], fallback=False,
+                cost_nm=float(costs[best]), accepted=accepted, rounds=len(tried), breach_predicted=False,
+                first_fraction=first_fraction, cluster_size=0 if cluster is None else int(cluster.sum()),
             )
+        # Every round failed: fly the candidate (of any round) that stayed feasible
+        # longest, ties broken by how far its waypoints leave the aircraft from home.
+        proposals = np.concatenate([t[0] for t in tried])
+        survived = np.concatenate([t[1] for t in tried])
+        after_first = np.concatenate([t[2] for t in tried])
+        distance = self._remaining_distance_of(proposals, view)
+        best = int(np.lexsort((distance, -survived))[0])
+        breach_predicted = bool(survived[best] < self._units_per_period())
+        return _SearchResult(
+            applied=proposals[best], applied_after_first=after_first[best], fallback=True, cost_nm=math.inf,
+            accepted=0, rounds=len(tried), breach_predicted=breach_predicted, first_fraction=first_fraction,
+            cluster_size=0 if cluster is None else int(cluster.sum()),
         )
-        waypoints = view.waypoints.copy()
-        waypoints[flying] = applied[flying]
-        self._predicted_positions = applied_after_first.copy()
-        self._predicted_flying = flying.copy()
-        self._predicted_time_s = view.time_s + s.period_s
-        return waypoints
 
     def set_wind_estimate(self, wind_kt: np.ndarray) -> None:
         """Replace the "estimated" wind model's estimate (east, north), kt, e.g. by that of a
@@ -833,13 +877,131 @@ class MCMCMPC:
             trace = _advance_candidates(states, flown_waypoints, wind, s.period_s, self._params, self._start_scratch)
             newly_bad, _ = self._period_verdict(states, trace, np.ones(1, dtype=bool))
             if newly_bad[0]:
-                involved = self._involved(states[0], trace)
-                where = states[0, :, S_X : S_Y + 1]
-                gap = np.hypot(*(where[:, None, :] - where[None, involved, :]).transpose(2, 0, 1))
-                near = (gap <= s.cluster_radius_nm).any(axis=1) if involved.any() else np.zeros_like(flying0)
-                return flying0 & (near | involved)
+                return self._cluster_around(view, states[0], trace)
             flown_waypoints = flown_waypoints + (states[:, :, S_X : S_Y + 1] - before)
         return np.zeros_like(flying0)
+
+    def _cluster_around(self, view: WorldView, state: np.ndarray, trace: kernel.Trace) -> np.ndarray:
+        """(N,) bool: the aircraft of one world (N, N_STATE) stopped at its first violation
+        that broke a constraint in the period ``trace`` records, and every aircraft flying in
+        ``view`` within ``cluster_radius_nm`` of one of them, where they are."""
+        involved = self._involved(state, trace)
+        where = state[:, S_X : S_Y + 1]
+        gap = np.hypot(*(where[:, None, :] - where[None, involved, :]).transpose(2, 0, 1))
+        near = (gap <= self.settings.cluster_radius_nm).any(axis=1) if involved.any() else np.zeros(len(state), bool)
+        return view.flying & (near | involved)
+
+    def _search_per_cluster(self, view: WorldView, recovering: np.ndarray) -> tuple[_SearchResult, int]:
+        """``sampling="per-cluster"``: the chain's start Θ_0 flown through the horizon; each
+        independent conflict cluster it shows searched by a chain of its own, in a world
+        without the other clusters' aircraft; the clusters' choices, put together, flown
+        jointly. Where they do not hold together, the "clusters" search from them. Returns
+        the applied search result and the number of independent clusters."""
+        start = self._start_waypoints(view)
+        clusters = self._conflict_clusters(view, start)
+        if not clusters:
+            return self._search(view, recovering, None), 0
+        if len(clusters) == 1:
+            return self._search(view, recovering, clusters[0]), 1
+        in_some = np.logical_or.reduce(clusters)
+        composed = start.copy()
+        rounds = 0
+        for cluster in clusters:
+            state = view.state.copy()
+            state[in_some & ~cluster, S_STATUS] = ABSENT
+            alone = WorldView(time_s=view.time_s, state=state, scenario=view.scenario)
+            result = self._search(alone, recovering, cluster)
+            composed[cluster] = result.applied[cluster]
+            rounds += result.rounds
+        violating, after_first, cost_nm = self._fly_alone(view, composed)
+        if not violating.any():
+            return _SearchResult(
+                applied=composed, applied_after_first=after_first, fallback=False, cost_nm=cost_nm, accepted=0,
+                rounds=rounds, breach_predicted=False, first_fraction=None, cluster_size=int(in_some.sum()),
+            ), len(clusters)
+        # The clusters' choices meet (a changed path reached another cluster): the joint
+        # prediction's search, from them, over the cluster of their first violation.
+        result = self._search(view, recovering, violating, start=composed)
+        return dataclasses.replace(result, rounds=rounds + result.rounds), len(clusters)
+
+    def _conflict_clusters(self, view: WorldView, waypoints: np.ndarray) -> list[np.ndarray]:
+        """The independent conflict clusters (N,) bool of ``waypoints`` (N, 2) nm flown alone
+        under the prediction through the whole horizon, past any violation, in the order of
+        their first violation. An aircraft that breaks a constraint at an integration step
+        (out of the prediction's envelope, or in a loss of separation) is linked to every
+        flying aircraft within ``cluster_radius_nm`` of it at that step, and to the other
+        aircraft of its loss of separation; a cluster is a connected set of links."""
+        s = self.settings
+        assert self._params is not None and self._config is not None
+        survey_params = self._survey_params[0 if self._params is self._prediction_models[0][1] else 1]
+        states, flown_waypoints = _candidate_starts(view.state, waypoints[None])
+        wind = self._prediction_wind_of_one()
+        n = view.state.shape[0]
+        link = np.zeros((n, n), dtype=bool)
+        first_violation = np.full(n, np.inf)
+        lowest, highest = self._config.airspeed_min_kt, self._config.airspeed_max_kt
+        steps = 0
+        for _ in range(s.horizon):
+            before = states[:, :, S_X : S_Y + 1].copy()
+            trace = _advance_candidates(
+                states, flown_waypoints, wind, s.period_s, survey_params, self._start_scratch, record_every=1
+            )
+            record = trace.record[0]
+            flew = record[:, :, kernel.R_FLEW] > 0
+            where = record[:, :, kernel.R_X : kernel.R_Y + 1]
+            gap = np.sqrt(((where[:, :, None, :] - where[:, None, :, :]) ** 2).sum(-1))
+            both = flew[:, :, None] & flew[:, None, :]
+            both[:, np.arange(n), np.arange(n)] = False
+            outside = flew & ((record[:, :, kernel.R_AIRSPEED_MIN] < lowest) | (
+                record[:, :, kernel.R_AIRSPEED_MAX] > highest))
+            los = trace.los_pairs[0] > 0
+            bad = outside | ((gap < self._config.separation_min_nm) & both).any(axis=2)
+            link |= (bad[:, :, None] & (gap <= s.cluster_radius_nm) & both).any(axis=0) | los
+            involved = bad.any(axis=0) | los.any(axis=0) | los.any(axis=1)
+            if involved.any():
+                at = np.where(bad.any(axis=0), steps + np.argmax(bad, axis=0), steps + record.shape[0])
+                first_violation = np.where(involved, np.minimum(first_violation, at), first_violation)
+            steps += record.shape[0]
+            flown_waypoints = flown_waypoints + (states[:, :, S_X : S_Y + 1] - before)
+        link |= link.T
+        seeds = np.isfinite(first_violation) & view.flying
+        clusters: list[np.ndarray] = []
+        unclaimed = seeds.copy()
+        while unclaimed.any():
+            cluster = np.zeros(n, dtype=bool)
+            cluster[int(np.argmax(unclaimed))] = True
+            while True:
+                grown = cluster | link[cluster].any(axis=0)
+                if (grown == cluster).all():
+                    break
+                cluster = grown
+            cluster &= view.flying
+            clusters.append(cluster)
+            unclaimed &= ~cluster
+        clusters.sort(key=lambda c: (float(first_violation[c].min()), int(np.argmax(c))))
+        return clusters
+
+    def _fly_alone(self, view: WorldView, waypoints: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """``waypoints`` (N, 2) nm flown alone under the prediction, as a candidate is: the
+        cluster of its first violation (none when it stays feasible, see
+        ``_violation_cluster``), the positions after one period (N, 2) nm and its cost, nm
+        (inf when infeasible)."""
+        s = self.settings
+        assert self._params is not None
+        states, flown_waypoints = _candidate_starts(view.state, waypoints[None])
+        wind = self._prediction_wind_of_one()
+        after_first: np.ndarray | None = None
+        for _ in range(s.horizon):
+            before = states[:, :, S_X : S_Y + 1].copy()
+            trace = _advance_candidates(states, flown_waypoints, wind, s.period_s, self._params, self._start_scratch)
+            newly_bad, _ = self._period_verdict(states, trace, np.ones(1, dtype=bool))
+            if after_first is None:
+                after_first = states[0, :, S_X : S_Y + 1].copy()
+            if newly_bad[0]:
+                return self._cluster_around(view, states[0], trace), after_first, math.inf
+            flown_waypoints = flown_waypoints + (states[:, :, S_X : S_Y + 1] - before)
+        assert after_first is not None
+        return np.zeros(view.state.shape[0], dtype=bool), after_first, float(self._cost(view.state, states)[0])
 
     def _involved(self, state: np.ndarray, trace: kernel.Trace) -> np.ndarray:
         """(N,) bool: the aircraft of one world (N, N_STATE) that broke a constraint in the
@@ -1021,7 +1183,7 @@ def _candidate_starts(base_state: np.ndarray, proposals: np.ndarray) -> tuple[np
 
 def _advance_candidates(
     states: np.ndarray, waypoints: np.ndarray, wind_kt: np.ndarray, seconds: float, params: np.ndarray,
-    scratch: kernel.KernelScratch,
+    scratch: kernel.KernelScratch, record_every: int = 0,
 ) -> kernel.Trace:
     """``kernel.advance`` of candidate worlds, a batch of fewer than
     ``_PARALLEL_FROM_WORLDS`` on one thread (the same bits on any number of threads)."""
@@ -1029,10 +1191,11 @@ def _advance_candidates(
     if states.shape[0] < _PARALLEL_FROM_WORLDS and threads > 1:
         numba.set_num_threads(1)
         try:
-            return kernel.advance(states, waypoints, wind_kt, seconds, params, scratch=scratch)
+            return kernel.advance(states, waypoints, wind_kt, seconds, params, record_every=record_every,
+                                  scratch=scratch)
         finally:
             numba.set_num_threads(threads)
-    return kernel.advance(states, waypoints, wind_kt, seconds, params, scratch=scratch)
+    return kernel.advance(states, waypoints, wind_kt, seconds, params, record_every=record_every, scratch=scratch)
 
 
 #: ``sampling="clusters"``: how many times one decision may replace the chain's start by a

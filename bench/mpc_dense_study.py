@@ -42,6 +42,7 @@ import numpy as np
 SETTINGS = {
     "joint": {},
     "dense": {"sampling": "clusters", "progress_fraction": 0.5, "progress_periods": 6},
+    "per-cluster": {"sampling": "per-cluster", "progress_fraction": 0.5, "progress_periods": 6},
 }
 #: A run fails the detour goal when an aircraft flies more than this times its direct distance.
 DETOUR_LIMIT = 1.5

@@ -229,3 +229,73 @@ def test_episode_info_has_the_same_keys_before_reset_and_after_an_episode():
     after = policy.episode_info()
     assert set(before) == set(after)
     assert before["stalled_aircraft"] == 0 and before["cluster_decisions"] == 0
+
+
+# ------------------------------------------------------------- sampling="per-cluster"
+
+
+def _two_conflicts() -> Scenario:
+    """Two head-on pairs 150 nm apart: two conflicts that do not touch each other."""
+    return Scenario(
+        name="two-conflicts",
+        start_xy=[[-60.0, 0.0], [60.0, 0.0], [-60.0, 150.0], [60.0, 150.0]],
+        start_heading=[0.0, math.pi, 0.0, math.pi],
+        dest_xy=[[200.0, 0.0], [-200.0, 0.0], [200.0, 150.0], [-200.0, 150.0]],
+        dest_heading=[0.0, math.pi, 0.0, math.pi],
+    )
+
+
+def test_per_cluster_finds_each_independent_conflict_and_solves_them_apart():
+    scenario = _two_conflicts()
+    policy = MCMCMPC(extractions=300, sampling="per-cluster")
+    policy.reset(scenario, SimConfig(), seed=0)
+    view = Simulation(scenario).view()
+    start = policy._start_waypoints(view)
+    clusters = policy._conflict_clusters(view, start)
+    assert [np.flatnonzero(c).tolist() for c in sorted(clusters, key=lambda c: int(np.argmax(c)))] == [[0, 1], [2, 3]]
+    waypoints = policy.act(view)
+    decision = policy.decisions[-1]
+    assert decision.clusters == 2 and decision.cluster_size == 4 and not decision.fallback
+    # What it applies is feasible when flown jointly, and every aircraft left its start.
+    violating, _, cost_nm = policy._fly_alone(view, waypoints)
+    assert not violating.any() and math.isfinite(cost_nm) and decision.cost_nm == cost_nm
+    assert all(not np.array_equal(waypoints[i], start[i]) for i in range(4))
+
+
+def test_per_cluster_sees_no_cluster_where_the_start_is_feasible():
+    scenario = _two_groups()
+    policy = MCMCMPC(extractions=300, sampling="per-cluster")
+    policy.reset(scenario, SimConfig(), seed=0)
+    view = Simulation(scenario).view()
+    clusters = policy._conflict_clusters(view, policy._start_waypoints(view))
+    assert [np.flatnonzero(c).tolist() for c in clusters] == [[0, 1]]  # only the head-on pair
+    sides = Scenario(name="sides", start_xy=[[0.0, 0.0], [0.0, 150.0]], start_heading=[0.0, 0.0],
+                     dest_xy=[[200.0, 0.0], [200.0, 150.0]], dest_heading=[0.0, 0.0])
+    policy.reset(sides, SimConfig(), seed=0)
+    view = Simulation(sides).view()
+    assert policy._conflict_clusters(view, policy._start_waypoints(view)) == []
+    policy.act(view)
+    assert policy.decisions[-1].clusters == 0 and policy.decisions[-1].cluster_size == 0
+
+
+def test_per_cluster_flies_the_same_episode_twice_and_keeps_its_guarantees():
+    settings = dict(extractions=200, sampling="per-cluster", progress_fraction=0.5, progress_periods=2)
+    a, b = (run_episode(MCMCMPC(**settings), converging(6), seed=1, record_every=1) for _ in range(2))
+    np.testing.assert_array_equal(a.records, b.records)
+    np.testing.assert_array_equal(a.waypoints, b.waypoints)
+    m = a.metrics
+    assert all(m.arrived) and m.los_count == 0 and 366.0 <= m.airspeed_min_kt <= m.airspeed_max_kt <= 540.0
+
+
+def test_per_cluster_flies_a_traffic_stream():
+    policy = MCMCMPC(extractions=50, sampling="per-cluster", progress_fraction=0.5, progress_periods=2)
+    result = run_episode(policy, "stream-60-60min", seed=2)
+    assert result.metrics.stream is not None and result.metrics.stream["flights_entered"] > 3
+    assert len(policy.decisions) == result.metrics.decisions
+
+
+def test_per_cluster_needs_the_every_step_check():
+    with pytest.raises(ValueError, match="per-cluster.*every-step"):
+        MCMCMPC(sampling="per-cluster", constraint_check="sampling-instants")
+    with pytest.raises(ValueError, match="allowed: joint, clusters, per-cluster"):
+        MCMCMPC(sampling="per-clusters")
