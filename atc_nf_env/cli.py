@@ -118,12 +118,14 @@ def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
                        help="lazy flies a candidate only as far as the chain needs; exhaustive flies all K over "
                             "the whole horizon and measures every decision's feasible fraction; both pick the "
                             "same waypoints (default: lazy)")
-    group.add_argument("--sampling", choices=("joint", "clusters"),
+    group.add_argument("--sampling", choices=("joint", "clusters", "per-cluster"),
                        help="joint samples every aircraft's waypoint; clusters, when the chain's start breaks a "
-                            "constraint, samples only the conflict cluster around the aircraft involved (for dense "
+                            "constraint, samples only the conflict cluster around the aircraft involved; per-cluster "
+                            "gives each independent conflict cluster of the start a chain of its own (for dense "
                             "traffic; see docs/mpc.md) (default: joint)")
     group.add_argument("--cluster-radius-nm", type=float,
-                       help="clusters: aircraft within this distance of one involved join its cluster (default: 30)")
+                       help="clusters, per-cluster: aircraft within this distance of one involved join its cluster "
+                            "(default: 30)")
     group.add_argument("--progress-fraction", type=float,
                        help="the progress rule: an aircraft closing less than this share of a direct flight's "
                             "progress over --progress-periods periods is held on its recovery waypoint "

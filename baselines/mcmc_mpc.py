@@ -156,6 +156,22 @@ without them):
   follow, and the fallback is chosen among every candidate flown. (Giving a round up
   after its first 256 candidates halved the decision time on converging-16 but brought
   fallbacks back: every round searches all K.)
+* ``sampling="per-cluster"``. With several conflicts in the horizon, "clusters" goes
+  from one to the next within one chain, and its cluster grows to most of them. Here the
+  chain's start Θ_0 is flown alone through the whole horizon, past its violations; an
+  aircraft that breaks a constraint at an integration step is linked to every flying
+  aircraft within ``cluster_radius_nm`` of it at that step (and to the other aircraft of
+  its loss of separation), and each connected set of links is an independent conflict
+  cluster. None: the decision is the joint one. One: the "clusters" search of that
+  cluster. Several: each, in the order of its first violation, is searched by a chain of
+  its own ("clusters"' rounds, repairs and growth) in a world without the other
+  clusters' aircraft (they would break the constraints of every candidate), and the
+  choices, put together, are flown jointly. If they hold (no violation), they are
+  applied; if not (a changed path met another cluster), the "clusters" search runs from
+  them over the cluster of their first violation, with its fallback. Every applied plan is
+  feasible in the joint prediction unless the decision counts as a fallback. Needs
+  ``constraint_check="every-step"``: the clusters are found at integration-step
+  resolution.
 * The progress rule (``progress_fraction``, ``progress_periods``). The cost looks one
   horizon (20 min) ahead, so an aircraft that overshot near its destination can be kept
   circling it: every candidate that flies out and back costs more within the horizon
@@ -308,6 +324,8 @@ class MPCSettings:
             waypoint) or "clusters" ("homing" only; see "Dense traffic"): when the
             chain's start breaks a constraint, the candidates draw only the waypoints of
             the conflict cluster around the aircraft involved.
+            "per-cluster" ("homing" and "every-step" only): each independent conflict
+            cluster of the chain's start is searched by a chain of its own.
         cluster_radius_nm: "clusters": flying aircraft within this distance of an aircraft
             involved in a violation, where they are when it happens, join its cluster, nm.
         progress_fraction: the progress rule ("homing" only; None: off, the default): an
