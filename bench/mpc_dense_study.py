@@ -1,14 +1,16 @@
 """The MCMC-MPC in dense traffic, per run: the joint sampler against conflict clusters.
 
 Flies ``baselines.MCMCMPC`` on converging-N and random-N encounters of many aircraft
-(σ = 5.17 m/s, the evaluator's 4-h limit) in two settings:
+(σ = 5.17 m/s, the evaluator's 4-h limit) in three settings:
 
 - ``joint``: the defaults (every decision samples every aircraft's waypoint jointly);
 - ``dense``: ``sampling="clusters"`` (when the chain's start breaks a constraint, the
   chain samples only the conflict cluster around the aircraft involved, the others keep
   their start) and the progress rule (``progress_fraction=0.5``, ``progress_periods=6``:
   an aircraft that closed less than half a direct flight's progress over 30 min is held
-  on its recovery waypoint).
+  on its recovery waypoint);
+- ``per-cluster``: ``sampling="per-cluster"`` (each independent conflict cluster of the
+  chain's start searched by a chain of its own) and the same progress rule.
 
 Per row: runs; runs with every aircraft home; runs with a loss of separation; runs with
 any integration step outside [366, 540] kt and the worst excursion; runs with a fallback
@@ -21,7 +23,10 @@ With ``--streams`` (e.g. ``stream-30,stream-60,stream-120``) it flies traffic st
 ``--stream-runs`` runs each from ``--stream-first-seed``, into a table of their own: runs
 with a flight that left the workspace, with a loss of separation, outside the envelope,
 with a fallback; throughput, delay against the direct flight, the most airborne at once,
-the decision times. ``--scenarios ''`` skips the encounters.
+the decision times. ``--scenarios ''`` skips the encounters. With ``--shielded`` (e.g.
+``agents/models/deepsets_mixed.zip,nf-leg``) the streams are flown by those proposers
+inside the safety filter, whose MPC fallback flies each setting (section
+"shielded-streams").
 
 Run: python bench/mpc_dense_study.py --scenarios converging-12,converging-16,random-12,random-16 --runs 20
      (--write puts the table into BENCHMARKS.md; --workers W flies runs in W processes, which
@@ -90,22 +95,42 @@ def fly_all(packed: Callable[[tuple[str, str, int]], dict], jobs: list[tuple[str
     return [packed(job) for job in jobs]
 
 
-def fly_stream(setting: str, stream_name: str, seed: int) -> dict:
+def _shielded(proposer: str, setting: str):
+    """``proposer`` (a registered policy, or a model file of ``agents``) inside the safety
+    filter, whose MPC fallback flies ``setting``."""
+    from atc_nf_env.policy import make_policy
+    from atc_nf_env.shield import SafetyFilter
+
+    if proposer.endswith(".zip"):
+        from agents.policy import SB3AgentPolicy
+
+        # Streams lie outside every shipped model's stated operating range (3-10 aircraft).
+        inner = SB3AgentPolicy(Path(proposer), outside_range="ignore")
+    else:
+        inner = make_policy(proposer)
+    return SafetyFilter(inner, mpc_settings=dict(SETTINGS[setting]))
+
+
+def fly_stream(setting: str, stream_name: str, seed: int, proposer: str = "") -> dict:
     """One run of a traffic stream: its per-run outcomes, the stream's metrics and the
-    decision times (s)."""
+    decision times (s). ``proposer``: fly it inside the safety filter instead of the MPC
+    alone (the MPC in ``setting`` is the filter's fallback)."""
     from atc_nf_env.episode import run_episode
     from baselines.mcmc_mpc import MCMCMPC
 
-    policy = MCMCMPC(**SETTINGS[setting])
+    policy = _shielded(proposer, setting) if proposer else MCMCMPC(**SETTINGS[setting])
     result = run_episode(policy, stream_name, seed=seed)
     metrics = result.metrics
     stream = metrics.stream
+    info = policy.episode_info()
     return {
         "seed": seed,
         "home": bool(metrics.success),  # no flight left the workspace
         "los": metrics.los_count > 0,
         "excursion": float(metrics.worst_excursion_kt),
-        "fallbacks": int(policy.episode_info()["fallbacks"]),
+        # Shielded: the decisions the filter left to the MPC, then those it could not make safe.
+        "fallbacks": int(info["shield_mpc_fallbacks"] if proposer else info["fallbacks"]),
+        "unresolved": int(info.get("shield_unresolved", 0)),
         "throughput_per_hour": float(stream["throughput_per_hour"]),
         "delay_s": stream["delay_s"]["mean"],
         "max_airborne": int(stream["max_airborne"]),
@@ -115,13 +140,14 @@ def fly_stream(setting: str, stream_name: str, seed: int) -> dict:
     }
 
 
-def _fly_stream_packed(job: tuple[str, str, int]) -> dict:
+def _fly_stream_packed(job: tuple) -> dict:
     return fly_stream(*job)
 
 
-def stream_study(setting: str, stream_name: str, seeds: range, workers: int) -> dict:
-    """Per-run outcomes of ``setting`` on the traffic stream ``stream_name`` over ``seeds``."""
-    runs = fly_all(_fly_stream_packed, [(setting, stream_name, seed) for seed in seeds], workers)
+def stream_study(setting: str, stream_name: str, seeds: range, workers: int, proposer: str = "") -> dict:
+    """Per-run outcomes of ``setting`` on the traffic stream ``stream_name`` over ``seeds``
+    (of ``proposer`` inside the safety filter, when given)."""
+    runs = fly_all(_fly_stream_packed, [(setting, stream_name, seed, proposer) for seed in seeds], workers)
     decisions = np.concatenate([r["decision_s"] for r in runs])
     delays = [r["delay_s"] for r in runs if r["delay_s"] is not None]
     return {
@@ -132,6 +158,7 @@ def stream_study(setting: str, stream_name: str, seeds: range, workers: int) -> 
         "worst": max(r["excursion"] for r in runs),
         "fallback_runs": sum(r["fallbacks"] > 0 for r in runs),
         "fallbacks": sum(r["fallbacks"] for r in runs),
+        "unresolved": sum(r["unresolved"] for r in runs),
         "decisions": int(decisions.size),
         "throughput": float(np.mean([r["throughput_per_hour"] for r in runs])),
         "delay_s": float(np.mean(delays)) if delays else None,
@@ -140,29 +167,42 @@ def stream_study(setting: str, stream_name: str, seeds: range, workers: int) -> 
         "entered": sum(r["entered"] for r in runs),
         "decision_mean_ms": 1e3 * float(decisions.mean()),
         "decision_p99_ms": 1e3 * float(np.percentile(decisions, 99)),
-        "failed": [r["seed"] for r in runs if not r["home"] or r["los"] or r["excursion"] > 0 or r["fallbacks"]],
+        # Shielded, a decision left to the MPC is no failure; one it could not make safe is.
+        "failed": [r["seed"] for r in runs if not r["home"] or r["los"] or r["excursion"] > 0
+                   or (r["unresolved"] if proposer else r["fallbacks"])],
     }
 
 
-def stream_section(settings: list[str], streams: list[str], seeds: range, workers: int) -> str:
+def stream_section(settings: list[str], streams: list[str], seeds: range, workers: int,
+                   proposers: list[str] | None = None) -> str:
+    """The streams' table: the MPC alone in each setting, or (``proposers``) each proposer
+    inside the safety filter with the MPC in each setting as its fallback."""
+    shielded = proposers is not None
     rows = [
-        "| setting | stream | runs | runs with a flight that left | runs with LoS | runs outside envelope (worst kt) "
-        "| runs with a fallback (fallbacks of decisions) | flights completed / entered | throughput /h "
-        "| delay s | max airborne | decision mean / p99 (ms) | seeds failing any |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+        "| setting | " + ("proposer | " if shielded else "") + "stream | runs | runs with a flight that left "
+        "| runs with LoS | runs outside envelope (worst kt) "
+        + ("| runs left to the MPC (decisions left of all; unresolved) " if shielded else
+           "| runs with a fallback (fallbacks of decisions) ")
+        + "| flights completed / entered | throughput /h | delay s | max airborne | decision mean / p99 (ms) "
+        "| seeds failing any |",
+        "|---|" + ("---|" if shielded else "") + "---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for setting in settings:
-        for stream in streams:
-            r = stream_study(setting, stream, seeds, workers)
-            failed = " ".join(map(str, r["failed"][:4])) + (" …" if len(r["failed"]) > 4 else "")
-            delay = "–" if r["delay_s"] is None else f"{r['delay_s']:.0f}"
-            rows.append(
-                f"| {setting} | {stream} | {r['runs']} | {r['left']} | {r['los']} | {r['outside']} ({r['worst']:.0f}) "
-                f"| {r['fallback_runs']} ({r['fallbacks']} of {r['decisions']}) | {r['completed']} / {r['entered']} "
-                f"| {r['throughput']:.1f} | {delay} | {r['max_airborne']} "
-                f"| {r['decision_mean_ms']:.0f} / {r['decision_p99_ms']:.0f} | {failed or '—'} |"
-            )
-            print(rows[-1], flush=True)
+        for proposer in proposers or [""]:
+            for stream in streams:
+                r = stream_study(setting, stream, seeds, workers, proposer)
+                failed = " ".join(map(str, r["failed"][:4])) + (" …" if len(r["failed"]) > 4 else "")
+                delay = "–" if r["delay_s"] is None else f"{r['delay_s']:.0f}"
+                left_to_mpc = (f"{r['fallback_runs']} ({r['fallbacks']} of {r['decisions']}; {r['unresolved']})"
+                               if shielded else f"{r['fallback_runs']} ({r['fallbacks']} of {r['decisions']})")
+                rows.append(
+                    f"| {setting} | " + (f"{Path(proposer).stem} | " if shielded else "")
+                    + f"{stream} | {r['runs']} | {r['left']} | {r['los']} | {r['outside']} ({r['worst']:.0f}) "
+                    f"| {left_to_mpc} | {r['completed']} / {r['entered']} "
+                    f"| {r['throughput']:.1f} | {delay} | {r['max_airborne']} "
+                    f"| {r['decision_mean_ms']:.0f} / {r['decision_p99_ms']:.0f} | {failed or '—'} |"
+                )
+                print(rows[-1], flush=True)
     return "\n".join(rows)
 
 
@@ -189,7 +229,9 @@ def study(setting: str, scenario_name: str, seeds: range, workers: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from _report import publish  # bench/ is on sys.path when run as a script
+    from _report import machine, publish  # bench/ is on sys.path when run as a script
+
+    from atc_nf_env import build
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--settings", default=",".join(SETTINGS), help=f"of {', '.join(SETTINGS)}")
@@ -201,6 +243,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stream-runs", type=int, default=3)
     parser.add_argument("--stream-first-seed", type=int, default=3_100_000_000,
                         help="seeds of the streams (default: in the stream tasks' training range, never flown)")
+    parser.add_argument("--shielded", default="",
+                        help="with --streams: fly these proposers (registered policies, or model files such as "
+                             "agents/models/deepsets_mixed.zip) inside the safety filter instead of the MPC alone, the "
+                             "MPC in each setting as the filter's fallback (BENCHMARKS section shielded-streams)")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--section", default="mpc-dense",
                         help="BENCHMARKS.md section of the encounters' table (another name keeps the default's)")
@@ -220,23 +266,29 @@ def main(argv: list[str] | None = None) -> int:
         status = encounter_table(args, settings, scenarios, seeds)
     if streams:
         stream_seeds = range(args.stream_first_seed, args.stream_first_seed + args.stream_runs)
-        rows = stream_section(settings, streams, stream_seeds, args.workers)
+        proposers = [p for p in args.shielded.split(",") if p]
+        rows = stream_section(settings, streams, stream_seeds, args.workers, proposers or None)
         command = (f"python bench/mpc_dense_study.py --settings {','.join(settings)} --scenarios '' --streams "
                    f"{args.streams} --stream-runs {args.stream_runs} --stream-first-seed {args.stream_first_seed} "
-                   f"--workers {args.workers}")
+                   + (f"--shielded {args.shielded} " if proposers else "") + f"--workers {args.workers}")
+        what = ("each proposer inside the safety filter (`atc_nf_env.shield.SafetyFilter`, its defaults), whose "
+                "fallback is `baselines.MCMCMPC` in the setting named; a decision left to the MPC is one no "
+                "alternative of the filter made safe, unresolved: one the MPC's choice did not make safe either"
+                if proposers else "`baselines.MCMCMPC` in the settings above; a fallback: a decision without a "
+                "feasible candidate")
         text = "\n".join([
-            "## MCMC-MPC on traffic streams",
+            "## Shielded policies on traffic streams" if proposers else "## MCMC-MPC on traffic streams",
             "",
-            f"`{command}` — `baselines.MCMCMPC` in the settings above, seeds {stream_seeds.start}–"
+            f"`{command}` ({machine()}, build `{build.fingerprint()}`) — {what}; seeds {stream_seeds.start}–"
             f"{stream_seeds.stop - 1}, σ = 5.17 m/s, 2 h of traffic each; outcomes per run (a flight that left: "
             "it left the workspace instead of arriving; outside the envelope: any integration step outside "
-            "[366, 540] kt; a fallback: a decision without a feasible candidate). Throughput: flights arrived per "
+            "[366, 540] kt). Throughput: flights arrived per "
             "hour (the sector starts empty), the mean over runs; delay: flight time minus the direct flight's "
             "(straight line at 454 kt), s, over the flights that arrived. Decision times warm, in this run.",
             "",
             rows,
         ])
-        status = publish("mpc-streams", text, args.write) or status
+        status = publish("shielded-streams" if proposers else "mpc-streams", text, args.write) or status
     return status
 
 

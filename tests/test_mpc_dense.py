@@ -220,6 +220,12 @@ def test_the_dense_study_prints_one_row_per_setting_and_scenario(capsys, monkeyp
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.startswith("| dense | stream-30-20min | 1 |")]
     assert len(rows) == 2 and "MCMC-MPC on traffic streams" in out and "converging" not in out
+    # A proposer inside the safety filter, the MPC per cluster as its fallback.
+    assert study.main(["--scenarios", "", "--settings", "per-cluster", "--streams", "stream-30-20min",
+                       "--stream-runs", "1", "--shielded", "nf-leg"]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("| per-cluster | nf-leg | stream-30-20min | 1 |")]
+    assert len(rows) == 2 and "Shielded policies on traffic streams" in out and "--shielded nf-leg" in out
 
 
 def test_episode_info_has_the_same_keys_before_reset_and_after_an_episode():
