@@ -88,6 +88,7 @@ if [[ $WHAT == all || $WHAT == benchmarks ]]; then
     run nf-floor "$PYTHON" bench/nf_floor_study.py --shield stream-30,stream-60 --write
     run mpc-dense "$PYTHON" bench/mpc_dense_study.py --runs 20 --workers 2 --write
     run mpc-streams "$PYTHON" bench/mpc_dense_study.py --scenarios '' --streams stream-30,stream-60,stream-120 --stream-runs 4 --workers 2 --write
+    run shielded-streams "$PYTHON" bench/mpc_dense_study.py --settings per-cluster --scenarios '' --streams stream-30 --stream-runs 4 --shielded agents/models/deepsets_mixed.zip,nf-leg --workers 2 --write
     run generalization-grid "$PYTHON" bench/generalization_grid.py --runs 20 --workers 2 --write --figure docs/figures/generalization_grid.png
     run offline-bc "$PYTHON" bench/offline_bc_study.py --seeds 3 --episodes 24 --runs 50 --write
 fi
