@@ -108,3 +108,19 @@ def test_an_impossible_right_hand_rule_is_rejected(field, value):
         SimConfig().replace(**{field: value})
 
 
+
+
+def test_the_convergence_study_flies_its_worst_encounters_down_the_ladder(capsys):
+    import integration_convergence_study as study
+
+    assert study.main(["--seeds", "2", "--first-seed", "0", "--family", "random", "--ladder", "1"]) == 0
+    out = capsys.readouterr().out
+    family = next(line for line in out.splitlines() if line.startswith("| random-3 ... 8 |"))
+    worst_seed = family.split("(seed ")[1].split(")")[0]
+    ladder = [line for line in out.splitlines() if line.startswith("| random-3 ... 8 | random-")]
+    assert len(ladder) == 1 and f"seed {worst_seed} |" in ladder[0]
+    cells = [c.strip().rstrip("*") for c in ladder[0].strip("|").split("|")[3:]]
+    assert len(cells) == len(study.LADDER_S) == 6 and all(float(c) > 0 for c in cells)
+    assert "| 5 s | 2.5 s |" in out and "--ladder 1" in out
+    with pytest.raises(SystemExit):
+        study.main(["--ladder", "-1"])
