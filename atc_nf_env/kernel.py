@@ -87,7 +87,11 @@ some of its steps finer):
    converging-3 ... 8, 22 of 30 encounters over 0.2 nm and 18 at the cap, against 5 and
    1; random-3 ... 8 improved, 11 and 3 against 16 and 7). The same study measures the
    NF alone on generic encounters, 5 s against 0.625 s: it is not converged at the
-   default step (BENCHMARKS.md).
+   default step (BENCHMARKS.md). Its ladder (the worst encounters at every step down to
+   dt / 32) shows why: where no command reaches the cap the figures settle, where one
+   does they jump between neighbouring steps, with the rate taken as it is too. A
+   near-head-on pass of a generic encounter can reach P_i → 0 with ∂Φ_i/∂t > 0, where
+   (5a) has no solution, and guard 9 regularizes only the symmetric saddle.
 9. The right-hand rule at the saddle. Why sub-steps alone do not converge: the
    converging encounters are symmetric under reflection about each aircraft's radial
    line, and so is the law, so the exact flow keeps every aircraft on its line. There
