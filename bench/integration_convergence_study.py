@@ -230,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
                 "neighbouring steps is decided by whether (5a)'s 1/P_i term blows up on the pass (P_i → 0 "
                 "with ∂Φ_i/∂t > 0), which no step size resolves (the kernel's docstring, guards 8 and 9).",
                 "",
-                "| family | encounter | move 5 s / 0.625 s (nm) | " + " | ".join(f"{dt:g} s" for dt in LADDER_S) + " |",
+                f"| family | encounter | move {COARSE_S:g} s / {FINE_S:g} s (nm) | " + " | ".join(f"{dt:g} s" for dt in LADDER_S) + " |",
                 "|---|---|---:|" + "---:|" * len(LADDER_S),
                 *ladder,
                 "",

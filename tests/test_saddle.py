@@ -108,8 +108,6 @@ def test_an_impossible_right_hand_rule_is_rejected(field, value):
         SimConfig().replace(**{field: value})
 
 
-
-
 def test_the_convergence_study_flies_its_worst_encounters_down_the_ladder(capsys):
     import integration_convergence_study as study
 
