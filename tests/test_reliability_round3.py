@@ -10,6 +10,7 @@ the correct result that replaced it.
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
 import math
 import os
@@ -491,18 +492,31 @@ def test_every_seed_of_a_crowded_random_family_gives_a_layout_and_old_layouts_st
     for seed in range(12):  # random-18 once failed at seeds 8, 9 and 12
         scenario = make_scenario("random-18", seed=seed)
         assert scenario.n_aircraft == 18
-    # Layouts that the generator found before are bit for bit the same (hashes of the
-    # canonical JSON of the layouts the earlier generator drew for these seeds).
-    assert make_scenario("random-6", seed=0).content_sha256() == LAYOUT_RANDOM_6_SEED_0
-    assert make_scenario("random-18", seed=0).content_sha256() == LAYOUT_RANDOM_18_SEED_0
+    # Layouts that the generator found before stay: the same draws, so the same coordinates.
+    # Compared rounded, not bit for bit: numpy's cos and sin take CPU-dependent SIMD paths
+    # (SVML on AVX-512), so the last bits of a layout differ between machines while the draws
+    # that pick it do not (random-18 seed 0: the closest spread test is 0.058 nm from 20 nm).
+    assert _rounded_layout_sha256(make_scenario("random-6", seed=0)) == LAYOUT_RANDOM_6_SEED_0
+    assert _rounded_layout_sha256(make_scenario("random-18", seed=0)) == LAYOUT_RANDOM_18_SEED_0
     limit = max_random_aircraft()
     with pytest.raises(ValueError, match=rf"n = {limit + 1} aircraft .* at most {limit}"):
         make_scenario(f"random-{limit + 1}", seed=5)
     make_scenario("random-20", seed=5)
 
 
-LAYOUT_RANDOM_6_SEED_0 = "dc6921824e8217205cb37fbd84f0be4fc87ff023ca382207ca6ffcd887c97317"
-LAYOUT_RANDOM_18_SEED_0 = "20b8c7df4c7d41839dcc0a63e9cd1620829daafca4dcd122876d3d329d0760d3"
+def _rounded_layout_sha256(scenario: Scenario) -> str:
+    """SHA-256 (hex) of the layout rounded to 1e-6 nm and 1e-9 rad: the same on every CPU."""
+    rounded = [
+        np.round(scenario.start_xy, 6).tolist(),
+        np.round(scenario.dest_xy, 6).tolist(),
+        np.round(scenario.start_heading, 9).tolist(),
+        np.round(scenario.dest_heading, 9).tolist(),
+    ]
+    return hashlib.sha256(json.dumps(rounded).encode()).hexdigest()
+
+
+LAYOUT_RANDOM_6_SEED_0 = "622d1f670c5fdaf69e034d6e0fb3a55cbaac7b288ef806a2a36a09bb56f6a127"
+LAYOUT_RANDOM_18_SEED_0 = "c83535b3a6743756c2d634c6ec91e4d99b195c3284e167c219de21cb4a6de561"
 
 
 @pytest.mark.parametrize("degrees", [1e308, -1e50, 360.5, -720.0])
