@@ -309,6 +309,10 @@ def _worker_init(parent_pid: int | None = None) -> None:
 
     numba.set_num_threads(1)
     if parent_pid is not None:
+        # Ctrl-C reaches the terminal's whole process group: the parent alone handles it
+        # and stops the workers (``_stop_workers``); an interrupted worker would only turn
+        # its run into an error the parent no longer reads.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         die_with_parent(parent_pid)
 
 
@@ -379,8 +383,9 @@ def _run_local(study: Study, seeds: Iterator[int], workers: int) -> Iterator[dic
     context = mp.get_context("spawn")
     finished = 0
     seeds = iter(seeds)
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init,
-                             initargs=(os.getpid(),)) as pool:
+    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init, initargs=(os.getpid(),))
+    pending: set = set()
+    try:
         # Runs are planned lazily, two per worker ahead: memory does not grow with ``runs``.
         pending = {pool.submit(run_one, study, seed) for seed in itertools.islice(seeds, 2 * workers)}
         while pending:
@@ -400,6 +405,28 @@ def _run_local(study: Study, seeds: Iterator[int], workers: int) -> Iterator[dic
                 finished += 1
                 yield record
             pending |= {pool.submit(run_one, study, seed) for seed in itertools.islice(seeds, len(done))}
+    except BaseException:  # Ctrl-C, --max-minutes closing this generator, a failed run
+        _stop_workers(pool, pending)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _stop_workers(pool: Any, pending: set) -> None:
+    """End a local pool at once: its queued runs cancelled, its workers killed (the runs
+    they were flying are lost; every finished run is already in the results file).
+    ``ProcessPoolExecutor.shutdown`` alone first flies the runs already queued (two per
+    worker), minutes in a dense MPC study."""
+    for future in pending:
+        future.cancel()
+    # Python 3.14 has ``kill_workers``; before it the processes are only in ``_processes``.
+    kill = getattr(pool, "kill_workers", None)
+    if kill is not None:
+        kill()
+    else:
+        for process in list((getattr(pool, "_processes", None) or {}).values()):
+            if process.is_alive():
+                process.kill()
+    pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _run_ray(study: Study, seeds: Iterator[int], workers: int) -> Iterator[dict[str, Any]]:

@@ -538,6 +538,7 @@ class MCMCMPC:
         self._ever_stalled = np.zeros(0, dtype=bool)
         self._progress_history: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
         self._params: np.ndarray | None = None
+        self._survey_params: np.ndarray | None = None
         self._check_params: np.ndarray | None = None
         self._wind_estimate_kt = np.zeros(2)
         self._predicted_positions: np.ndarray | None = None
@@ -571,7 +572,9 @@ class MCMCMPC:
             _load_compiled_chain()  # numba's compilation (or cache load) outside act's time
         stop = self.settings.constraint_check == "every-step"
         # The prediction's envelope: narrower by the margin; the real flight's is config's.
-        # (config, params) at the first decision, then at every later one.
+        # (config, params, survey params) at the first decision, then at every later one.
+        # sampling="per-cluster" flies the chain's start through the whole horizon, past its
+        # violations, to see every conflict: the survey is the same prediction without the stop.
         self._prediction_models = []
         for margin in (self.first_decision_margin_kt, self.envelope_margin_kt):
             # A margin never takes more than a quarter of the envelope's width.
@@ -579,15 +582,11 @@ class MCMCMPC:
             narrowed = dataclasses.replace(
                 config, airspeed_min_kt=config.airspeed_min_kt + margin, airspeed_max_kt=config.airspeed_max_kt - margin
             )
-            self._prediction_models.append(
-                (narrowed, narrowed.to_params(scenario.workspace_radius_nm, stop_on_violation=stop))
-            )
-        self._config, self._params = self._prediction_models[0]
-        # sampling="per-cluster" flies the chain's start through the whole horizon, past its
-        # violations, to see every conflict: the same prediction without the stop.
-        self._survey_params = [params.copy() for _, params in self._prediction_models]
-        for params in self._survey_params:
-            params[nf.P_STOP_ON_VIOLATION] = 0.0
+            params = narrowed.to_params(scenario.workspace_radius_nm, stop_on_violation=stop)
+            survey = params.copy()
+            survey[nf.P_STOP_ON_VIOLATION] = 0.0
+            self._prediction_models.append((narrowed, params, survey))
+        self._use_prediction_model(0)
         # Every kernel path the candidates' batches can take, compiled (or loaded) now: a
         # first compilation inside a decision would be timed as the decision.
         kernel.load_paths(initial_state(scenario)[0], self._params)
@@ -604,6 +603,10 @@ class MCMCMPC:
         self._progress_history = []
         self._arrival_nm = float(self._params[nf.P_DELTA])
 
+    def _use_prediction_model(self, index: int) -> None:
+        """Predict with the first decision's model (``index`` 0) or every later one's (1)."""
+        self._config, self._params, self._survey_params = self._prediction_models[index]
+
     def act(self, view: WorldView) -> np.ndarray:
         """The waypoints (N, 2), nm, of the lowest-cost candidate in the chain."""
         if self._params is None:
@@ -611,7 +614,7 @@ class MCMCMPC:
         s = self.settings
         # The first decision's wider margin until drift has been seen or an estimate given.
         first = not self.decisions and not self._wind_estimate_given
-        self._config, self._params = self._prediction_models[0 if first else 1]
+        self._use_prediction_model(0 if first else 1)
         self._update_wind_estimate(view)
         flying = view.flying
         self._update_progress(view)
@@ -885,19 +888,7 @@ class MCMCMPC:
         in the first violation (the envelope, or a loss of separation) of ``waypoints`` (N, 2)
         nm flown alone over the horizon under the prediction, where they were when it
         stopped; none when it stays feasible."""
-        s = self.settings
-        assert self._params is not None and self._config is not None
-        states, flown_waypoints = _candidate_starts(view.state, waypoints[None])
-        wind = self._prediction_wind_of_one()
-        flying0 = view.flying
-        for _ in range(s.horizon):
-            before = states[:, :, S_X : S_Y + 1].copy()
-            trace = _advance_candidates(states, flown_waypoints, wind, s.period_s, self._params, self._start_scratch)
-            newly_bad, _ = self._period_verdict(states, trace, np.ones(1, dtype=bool))
-            if newly_bad[0]:
-                return self._cluster_around(view, states[0], trace)
-            flown_waypoints = flown_waypoints + (states[:, :, S_X : S_Y + 1] - before)
-        return np.zeros_like(flying0)
+        return self._fly_alone(view, waypoints)[0]
 
     def _cluster_around(self, view: WorldView, state: np.ndarray, trace: kernel.Trace) -> np.ndarray:
         """(N,) bool: the aircraft of one world (N, N_STATE) stopped at its first violation
@@ -950,8 +941,8 @@ class MCMCMPC:
         flying aircraft within ``cluster_radius_nm`` of it at that step, and to the other
         aircraft of its loss of separation; a cluster is a connected set of links."""
         s = self.settings
-        assert self._params is not None and self._config is not None
-        survey_params = self._survey_params[0 if self._params is self._prediction_models[0][1] else 1]
+        assert self._survey_params is not None and self._config is not None
+        survey_params = self._survey_params
         states, flown_waypoints = _candidate_starts(view.state, waypoints[None])
         wind = self._prediction_wind_of_one()
         n = view.state.shape[0]

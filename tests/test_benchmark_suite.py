@@ -154,6 +154,7 @@ def test_a_stream_card_carries_the_stream_metrics_and_compares_with_the_direct_f
         card_from_records(task, split, "x", False, [record(4_000_000_000)], None)
 
 
+@pytest.mark.slow  # two 2-h streams of the suite's task, half a minute
 def test_nf_leg_scores_a_stream_task_without_flying_the_mpc(tmp_path) -> None:
     from atc_nf_env.policy import register_policy
     from baselines import NFLeg

@@ -92,6 +92,7 @@ def _resume_and_compare(path: Path, reference, capsys) -> None:
     assert path.read_bytes() == before
 
 
+@pytest.mark.slow  # about 2 minutes; test_evaluate.py kills a study once in the default run
 def test_sigkill_at_several_points_then_damage_and_resume(tmp_path, reference, capsys):
     out = tmp_path / "runs.jsonl"
     snapshots = []

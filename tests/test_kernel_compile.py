@@ -99,6 +99,7 @@ def test_the_first_env_step_announces_its_compilation_and_a_warm_one_does_not(tm
     assert NOTICE not in warm.stderr
 
 
+@pytest.mark.slow  # a cold compile of the lane path, about a minute
 def test_the_mpc_compiles_the_lane_path_when_reset_and_flies_every_batch_on_it(tmp_path: Path) -> None:
     """The MPC flies its candidates in batches of every size: its reset compiles (or loads)
     the lane path, so the first episode's decisions are timed warm, and from then on the

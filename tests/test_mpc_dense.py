@@ -90,6 +90,7 @@ def test_dense_settings_fly_the_same_episode_twice():
     np.testing.assert_array_equal(a.waypoints, b.waypoints)
 
 
+@pytest.mark.slow  # half a minute; test_per_cluster_flies_a_traffic_stream flies a stream by default
 def test_dense_settings_fly_a_traffic_stream():
     policy = MCMCMPC(extractions=50, sampling="clusters", progress_fraction=0.5, progress_periods=2)
     result = run_episode(policy, "stream-60-60min", seed=2)
@@ -166,7 +167,7 @@ def test_an_empty_stream_slot_is_never_part_of_a_conflict():
     state[2, S_AIRSPEED] = 0.0
     state[2, S_X : S_Y + 1] = state[3, S_X : S_Y + 1] + [5.0, 0.0]  # parked beside aircraft 3
     world = WorldView(time_s=view.time_s, state=state, scenario=scenario)
-    policy._config, policy._params = policy._prediction_models[1]
+    policy._use_prediction_model(1)
     states, waypoints = mcmc_mpc._candidate_starts(state, policy._start_waypoints(world)[None])
     trace = mcmc_mpc._advance_candidates(states, waypoints, np.zeros((1, 2)), policy.settings.period_s,
                                          policy._params, policy._start_scratch)

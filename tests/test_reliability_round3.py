@@ -229,8 +229,13 @@ def _alive(pid: int) -> bool:
 @pytest.mark.parametrize("how", ["SIGKILL", "SIGTERM", "SIGINT"])
 def test_workers_die_with_their_parent_and_resume_is_exact(how, tmp_path) -> None:
     out = tmp_path / "r.jsonl"
-    command = [sys.executable, "-m", "atc_nf_env.cli", "evaluate", "--policy", "nf", "--scenario", "converging-3",
-               "--runs", "100000", "--workers", "2", "--no-progress", "--max-minutes", "60", "--out", str(out)]
+    arguments = ["evaluate", "--policy", "nf", "--scenario", "converging-3", "--runs", "100000", "--workers", "2",
+                 "--no-progress", "--max-minutes", "60", "--out", str(out)]
+    # Ctrl-C as an interactive terminal delivers it: a suite started in the background of a
+    # shell inherits SIGINT ignored, and so would the study (as it should, but untestably).
+    interactive = ("import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                   "sys.argv[0] = 'atc-nf'; runpy.run_module('atc_nf_env.cli', run_name='__main__')")
+    command = [sys.executable, "-c", interactive, *arguments]
     # stdout is a pipe, as in `atc-nf evaluate ... | cat`: it must close when the study dies.
     process = subprocess.Popen(command, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                start_new_session=True)
