@@ -393,9 +393,7 @@ def _run_local(study: Study, seeds: Iterator[int], workers: int) -> Iterator[dic
             for future in done:
                 try:
                     record = future.result()
-                except BrokenProcessPool:
-                    for other in pending:
-                        other.cancel()
+                except BrokenProcessPool:  # the except below stops the rest
                     if finished == 0:
                         raise RuntimeError(MAIN_GUARD_HINT) from None
                     raise RuntimeError(
