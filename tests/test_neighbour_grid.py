@@ -165,7 +165,7 @@ def _fly(state: np.ndarray, search: str, params: np.ndarray, wind: np.ndarray, p
     return state, traces, ""
 
 
-@settings(max_examples=6, deadline=None)
+@settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), n=st.integers(2, 120), n_worlds=st.sampled_from([1, 3, kernel.LANE_MIN_WORLDS]),
        spread_nm=st.sampled_from([30.0, 120.0, 600.0]), stop=st.booleans(), record_every=st.integers(0, 2))
 def test_kernel_flies_the_same_bits_with_the_grid(seed: int, n: int, n_worlds: int, spread_nm: float, stop: bool,
