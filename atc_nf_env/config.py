@@ -57,8 +57,12 @@ class SimConfig:
             flown in ceil(dt_s / substep_s) sub-steps.
         substep_from_kt: the 1/P_i term of (5a), kt, above which a step is flown in
             sub-steps (guard 8), so that the right-hand rule's ramp (from
-            ``right_turn_from_kt``) is entered at the sub-step's resolution whatever dt is;
-            half of ``right_turn_from_kt`` by default.
+            ``right_turn_from_kt``) is entered at the sub-step's resolution whatever dt is.
+        step_tolerance_nm: error control of the steps among neighbours (kernel guard 10):
+            a step with two aircraft within the sensing radius at its start or its end is
+            flown in as many sub-steps (at most ceil(dt_s / substep_s)) as bring its
+            estimated local position error within this, nm; 0 turns the estimate off (the
+            step is then refined only where its end asks for it, guard 8).
         right_turn_deg: the right-hand rule at the law's singularity (kernel guard 9):
             where the 1/P_i term of (5a) exceeds ``right_turn_from_kt`` the desired
             heading θ_nh is turned to the right, by this angle, deg, once the term reaches
@@ -89,9 +93,10 @@ class SimConfig:
     dphi_dt_gain: float = 1.0
     substep_s: float = 0.1
     substep_from_kt: float = 50.0
-    right_turn_deg: float = 90.0
-    right_turn_from_kt: float = 100.0
-    right_turn_full_kt: float = 400.0
+    step_tolerance_nm: float = 0.002
+    right_turn_deg: float = 45.0
+    right_turn_from_kt: float = 200.0
+    right_turn_full_kt: float = 800.0
 
     def __post_init__(self) -> None:
         for field in fields(self):
@@ -106,7 +111,7 @@ class SimConfig:
         for name in positive:
             if getattr(self, name) <= 0:
                 raise ValueError(f"SimConfig.{name} = {getattr(self, name)!r}: must be > 0")
-        for name in ("k_u", "k_z", "f_a0"):
+        for name in ("k_u", "k_z", "f_a0", "step_tolerance_nm"):
             if getattr(self, name) < 0:
                 raise ValueError(f"SimConfig.{name} = {getattr(self, name)!r}: must be >= 0")
         if not 0 <= self.right_turn_deg <= 180:
@@ -184,6 +189,7 @@ class SimConfig:
         params[nf.P_DPHI_DT_GAIN] = self.dphi_dt_gain
         params[nf.P_SUBSTEP] = self.substep_s
         params[nf.P_SUBSTEP_FROM] = self.substep_from_kt
+        params[nf.P_STEP_TOLERANCE] = self.step_tolerance_nm
         params[nf.P_RIGHT_TURN] = math.radians(self.right_turn_deg)
         params[nf.P_RIGHT_TURN_FROM] = self.right_turn_from_kt
         params[nf.P_RIGHT_TURN_FULL] = self.right_turn_full_kt

@@ -40,9 +40,9 @@ airspeeds u_j = −sgn(P_j) F_j of the same instant (the law is implicit in u_j,
 and θ_nh the angle of sgn(p_i) ∇_iΦ_i. The wind w enters the ground velocity only: the envelope
 constrains airspeed, and the NF never sees the wind.
 
-Guards against the law's singularities (each keeps a value finite that the law
-leaves undefined; none acts in an ordinary flight but guard 8's watch, which only flies
-some of its steps finer):
+Guards against the law's singularities and the step's error (each keeps a value finite
+that the law leaves undefined, or a step accurate; none acts in an ordinary flight but
+guards 8 and 10, which only fly some of its steps finer):
 
 1. |P_i| is floored at ``p_floor`` in the 1/P_i term: P_i = 0 when the heading is
    normal to the gradient, e.g. just after a waypoint switch.
@@ -54,100 +54,77 @@ some of its steps finer):
    has no direction, and θ_nh = θ_d (the paper's rule at q_i = q_d).
 4. Heading errors are wrapped to [−π, π): θ_i − θ_nh is an angle, and an unwrapped
    difference of 2π would command a full useless turn.
-5. θ̇_nh is a backward difference of θ_nh over the last step (the law needs it; the
-   closed form would need the Hessian of Φ). It is reset to 0 on a waypoint switch and
-   when θ_nh jumps by more than π/2 in one step (sgn(p_i) flipping, or a switch): a
-   jump is not a rate, and differencing it would command an arbitrary turn.
+5. θ̇_nh is a backward difference of θ_nh over the last step or sub-step, divided by its
+   length (the law needs it; the closed form would need the Hessian of Φ). It is reset
+   to 0 on a waypoint switch and when θ_nh jumps by more than π/2 in one step (sgn(p_i)
+   flipping, or a switch): a jump is not a rate, and differencing it would command an
+   arbitrary turn.
 6. Disks that overlap give G_i = 0 (see ``nf.proximity_bump``), not a negative G_i.
 7. An aircraft whose disk reaches the workspace boundary (β0 ≤ 0) has left and is no
    longer simulated, so Φ is never evaluated where it is undefined.
 8. Sub-steps at the singularity. Near a critical point of Φ_i with neighbours closing
-   in (∂Φ_i/∂t > 0, |P_i| → 0; the converging encounters without wind reach one), the
-   1/P_i term saturates and its sign follows the sign of P_i: u_i = −u_cap sgn(P_i).
-   A step of dt overshoots P_i = 0 by up to u_cap · dt (2 nm at 5 s) and the sign then
-   alternates step by step, so the flight depended on dt. A step in which any command
-   saturates, in which the right-hand rule acts (guard 9), or in which any aircraft's
-   1/P_i term, (∂Φ_i/∂t)⁺ / |P_i|, exceeds ``substep_from_kt`` (50 kt: the watch) is
-   therefore flown in ceil(dt / ``substep_s``) explicit-Euler sub-steps, each with
-   fresh commands; the
-   overshoot falls to u_cap · substep_s (0.04 nm at 0.1 s) whatever dt is. The outer
-   grid is kept: traces, records and violation counts stay per integration step
-   (min/max airspeed, separation and arrival are checked on every sub-step), and
-   the step after a refined one is Euler (AB2's previous rates are a sub-step old).
-   Where the world stops at this step anyway (``stop_on_violation`` and a command
-   outside the envelope, as in the MPC's candidates) the step is not refined: its
-   first sub-step has the same command and the same verdict.
-   A known defect: after a refined step's first sub-step, θ̇_nh (guard 5) is the
-   backward difference over a sub-step times n_sub twice over (the sub-steps' commands
-   take dt / n_sub as the step length and scale the last step's length by n_sub again),
-   so the heading's feed-forward there is n_sub = ceil(dt / ``substep_s``) times the
-   law's rate (50 at 5 s, 7 at 0.625 s), and depends on dt. Guard 9's rule was tuned
-   with it: taking the rate as it is made the NF alone at the converging saddle move
-   more on refining dt (``bench/integration_convergence_study.py``: perturbed
-   converging-3 ... 8, 22 of 30 encounters over 0.2 nm and 18 at the cap, against 5 and
-   1; random-3 ... 8 improved, 11 and 3 against 16 and 7). The same study measures the
-   NF alone on generic encounters, 5 s against 0.625 s: it is not converged at the
-   default step (BENCHMARKS.md). Its ladder (the worst encounters at every step down to
-   dt / 32) shows why: where no command reaches the cap the figures settle, where one
-   does they jump between neighbouring steps, with the rate taken as it is too. A
-   near-head-on pass of a generic encounter can reach P_i → 0 with ∂Φ_i/∂t > 0, where
-   (5a) has no solution, and guard 9 regularizes only the symmetric saddle.
-9. The right-hand rule at the saddle. Why sub-steps alone do not converge: the
-   converging encounters are symmetric under reflection about each aircraft's radial
-   line, and so is the law, so the exact flow keeps every aircraft on its line. There
-   ∇_iΦ_i is radial, and it vanishes where the neighbours' repulsion balances the pull
-   of the destination: P_i = 0 at a critical point of Φ_i, while ∂Φ_i/∂t > 0. The law
-   has no solution there (even solved implicitly in the u_j, the common airspeed u of
-   the N aircraft obeys u (g − c) = F g, g = |∇_iΦ_i| and c = Σ_j ∇_jΦ_i · J_j, which
-   blows up as g → c, with no solution beyond): the N aircraft meet at a saddle of the
-   joint flow. With the direction of ∇_iΦ_i undefined, θ_nh swings by up to π within a
-   second and u_i by ±u_cap, so which way each aircraft leaves its line is decided by
-   rounding errors of 1e-14 nm, and the scramble that follows differed with dt by up
-   to 2 nm of minimum separation. A rule at this one point is needed, not a finer
-   step. We take the rules of the air (ICAO Annex 2, 3.2.2.2: aircraft approaching
-   head-on each alter heading to the right): where the 1/P_i term, (∂Φ_i/∂t)⁺ / |P_i|,
-   exceeds ``right_turn_from_kt`` the desired heading θ_nh is turned to the right by
-   w_i · ``right_turn_deg``, the airspeed blends toward the feedback magnitude F_i,
-   u_i = (1 − w_i) u_i^(5a) + w_i F_i, saturated again by guard 2 (F_i alone exceeds
-   the cap for a waypoint far enough away), and the neighbours' airspeeds in ∂Φ_i/∂t are
-   blended the same way (−sgn(P_j) F_j flips at random where P_j ≈ 0). The weight w_i
-   rises from 0 to 1 as a C¹ smoothstep of the term up to ``right_turn_full_kt``, a
-   function of the state and not switched at a grid instant, so the heading's θ̇_nh
-   feed-forward turns the aircraft as fast as w_i rises, and the flow is again a
-   Lipschitz ODE off P_i = 0; the reflection is broken by the law. Where w_i = 0
-   nothing changes, bit for bit: an ordinary flight, whose 1/P_i term stays below the
-   threshold, and the MPC's candidates (seeds 0-2 of converging-4 and -6 fly identical
-   trajectories with the rule on and off).
-   Measured (``bench/integration_step_study.py``, NF alone, converging-3 ... 8 without
-   wind, default physics, dt = 5 ... 0.625 s): the largest move of the minimum
-   separation on halving dt fell from 2.1 nm to 0.3 nm with the rule, and to 0.21 nm
-   with the rule and guard 8's watch, with no loss of separation.
-   Why it acts from 100 kt and turns θ_nh by up to 90°: acting only beyond the
-   envelope (from 540 kt) leaves about half a second before the blow-up, and the
-   moves stayed at 1.6-1.7 nm; a standard-rate turn (3°/s added to ω_i, from 540 kt)
-   is overridden by the ±π swings of θ_nh, and rounding still decided (1.2 nm);
-   from 100 kt, a rate of 3-30°/s, or a turn toward 90° right of the bearing to the
-   waypoint instead of θ_nh, lost separation in some encounters.
-   The watch of guard 8: the term grows like 1/(t₀ − t) as P_i → 0, so at 2.5 and 5 s
-   it could cross the rule's whole ramp (100 to 400 kt) within one full step, and in
-   some encounters the first break was still to the left; flying every step whose term
-   exceeds 50 kt in sub-steps enters the ramp at 0.1-s resolution whatever dt is (the
-   term takes as long to double from 50 to 100 kt as it then takes to blow up). The watch also
-   acts in ordinary flights, where a neighbour closing in gives a term of tens of kt,
-   and makes those steps finer and dearer (``bench/substep_watch_study.py``, 8 seeds of
-   converging-6 and random-6 side by side; BENCHMARKS.md, "Guard 8's watch", has the
-   ratios of its last run, which move with the machine's load and with the filter's own
-   cost): a watch from 10 kt made the MPC's decisions about 1.3x and the safety filter's
-   2-3x as long as without a watch, one from 50 kt within about 10 %. Its effect at the
-   saddle was the same from 10 to 50 kt (the mean over perturbed starts moves by 0.13 nm
-   on halving dt, 0.43 nm without a watch), so it watches from half the rule's onset.
-   What is left: the rule keeps the encounter's rotation symmetry, and the pinwheel it
-   flies around the centre is unstable and splits by rounding (4 aircraft: two turn
-   away first, relieving the other two): starts perturbed by 1e-12 nm move the minimum
-   separation by up to 0.3 nm at a fixed step. The exact encounter is one draw from
-   that spread; halving dt moves it by up to 0.21 nm on converging-3 ... 8 (< 0.2 nm
-   but for converging-7), and the mean of an ensemble of perturbed starts by 0.13 nm
-   (tables in BENCHMARKS.md).
+   in (∂Φ_i/∂t > 0, |P_i| → 0), the 1/P_i term saturates and its sign follows the sign
+   of P_i: u_i = −u_cap sgn(P_i). A step of dt overshoots P_i = 0 by up to u_cap · dt
+   (2 nm at 5 s) and the sign then alternates step by step, so the flight depended on
+   dt. A step in which any command saturates, in which the right-hand rule acts (guard
+   9), or in which any aircraft's 1/P_i term, (∂Φ_i/∂t)⁺ / |P_i|, exceeds
+   ``substep_from_kt`` (50 kt: the watch) at its start, or, among neighbours, at its end
+   (guard 10), is therefore flown in ceil(dt / ``substep_s``) explicit-Euler sub-steps,
+   each with fresh commands; the overshoot falls to u_cap · substep_s (0.04 nm at 0.1 s)
+   whatever dt is. The term grows like 1/(t₀ − t) as P_i → 0, so a full step of 5 s can
+   go from below the watch to the blow-up: the test at the step's end catches it. The
+   outer grid is kept: traces, records and violation counts stay per integration step
+   (min/max airspeed, separation and arrival are checked on every sub-step), and the
+   step after a refined one is Euler (AB2's previous rates are a sub-step old). Where the
+   world stops at this step anyway (``stop_on_violation`` and a command outside the
+   envelope, as in the MPC's candidates) the step is not refined: its first sub-step has
+   the same command and the same verdict.
+9. The right-hand rule at the saddle. The converging encounters are symmetric under
+   reflection about each aircraft's radial line, and so is the law, so the exact flow
+   keeps every aircraft on its line. There ∇_iΦ_i is radial, and it vanishes where the
+   neighbours' repulsion balances the pull of the destination: P_i = 0 at a critical
+   point of Φ_i, while ∂Φ_i/∂t > 0. The law has no solution there (even solved
+   implicitly in the u_j, the common airspeed u of the N aircraft obeys u (g − c) = F g,
+   g = |∇_iΦ_i| and c = Σ_j ∇_jΦ_i · J_j, which blows up as g → c, with no solution
+   beyond): the N aircraft meet at a saddle of the joint flow, and which way each leaves
+   its line is decided by rounding errors. A generic near-head-on pass reaches the same
+   blow-up. A rule is needed there, not a finer step. We take the rules of the air (ICAO
+   Annex 2, 3.2.2.2: aircraft approaching head-on each alter heading to the right): where
+   the 1/P_i term exceeds ``right_turn_from_kt`` (200 kt) the desired heading θ_nh is
+   turned to the right by w_i · ``right_turn_deg`` (45°), the airspeed blends toward the
+   feedback magnitude F_i, u_i = (1 − w_i) u_i^(5a) + w_i F_i, saturated again by guard 2
+   (F_i alone exceeds the cap for a waypoint far enough away), and the neighbours'
+   airspeeds in ∂Φ_i/∂t are blended the same way (−sgn(P_j) F_j flips at random where
+   P_j ≈ 0). The weight w_i rises from 0 to 1 as a C¹ smoothstep of the term up to
+   ``right_turn_full_kt`` (800 kt), a function of the state and not switched at a grid
+   instant, so the heading's θ̇_nh feed-forward turns the aircraft as fast as w_i rises,
+   and the flow is again a Lipschitz ODE off P_i = 0. Where w_i = 0 nothing changes, bit
+   for bit. The angle and the ramp were chosen with ``bench/integration_convergence_study.py``
+   (seeds 880000+; checked on the held-out seeds 881000+): with 90° from 100 to 400 kt,
+   the ramp tuned before θ̇_nh was taken at its true rate (guard 5), perturbed converging
+   encounters moved by up to 3 nm with dt and hit the cap; 45° from 200 to 800 kt
+   settles both families. What is left: the rule keeps the encounter's rotation
+   symmetry, and the pinwheel it flies around the centre is unstable and splits by
+   rounding, so a converging encounter's minimum separation is one draw from a spread of
+   a few tenths of a nm (BENCHMARKS.md, "integration-convergence").
+10. Error control among neighbours. An integration step with two aircraft within the
+   sensing radius at its start or at its end is first tried whole: every aircraft is
+   moved as the step would move it, and the law's commands are taken there. If they ask
+   for refinement (guard 8) the step is flown in ceil(dt / ``substep_s``) sub-steps; else
+   its local position error is estimated from the ground velocities of the last step,
+   this one and the next (AB2's against the next order's: (5/12) dt |v₊ − 2v + v₋|; after
+   a switch or a refined step, Euler's: dt |v₊ − v| / 2), and where it exceeds
+   ``step_tolerance_nm`` (0.002 nm) the step is flown in as many Euler sub-steps as bring
+   it within (their error falls as 1 / their number), at most ceil(dt / ``substep_s``).
+   A step flown whole keeps its trial's commands for the next step (the trial moved every
+   aircraft in the same arithmetic, so they are the same bits), unless an aircraft
+   arrived or left. Why: at 5 s, AB2 enters a pass late and coarse (the neighbour's
+   repulsion switches on within one step as it enters the sensing radius), and the NF
+   alone on random encounters missed the converged minimum separation by up to 2 nm;
+   with the control the figures at 5 s and at dt/8 agree within the goal of 0.2 nm on the
+   random encounters of the study. Steps with no pair in range at either end are
+   untouched: an ordinary step is one with no pair within the sensing radius before and
+   after its move (``_ordinary_run``, the lane step), so every path flies the same bits.
 
 An aircraft that arrives (its path passes within Δ of its destination, checked on
 every integration step's segment) or leaves is frozen and stops being an obstacle.
@@ -237,6 +214,8 @@ C_STEP_MAX = 13  # highest, kt
 # The last ordinary step's move (``_ordinary_run``), as the one-step form of it left it.
 C_X1, C_Y1, C_HEADING1, C_VX, C_VY, C_STEP_NM = 14, 15, 16, 17, 18, 19
 N_COMMAND = 20
+#: The columns ``_commands`` writes.
+_COMMAND_COLUMNS = (C_U_FEEDBACK, C_OMEGA, C_THETA_NH, C_P, C_U, C_COS, C_SIN, C_NEAR, C_DPHI_DT, C_RIGHT_TURN)
 
 # Rows of one world's aircraft lanes (``_ordinary_run``: one column per flying aircraft).
 # The state's fields a run of ordinary steps reads or writes, the rows ``A_X`` ...
@@ -249,7 +228,11 @@ _STATE_FIELD_OF_LANE = (S_X, S_Y, S_HEADING, S_AIRSPEED, S_THETA_NH, S_WP_X, S_W
 N_AIRCRAFT_FIELDS = 19
 (A_GX, A_GY, A_ARG_X, A_ATAN2, A_SIN, A_COS, A_X1, A_Y1, A_HEADING1, A_VX, A_VY, A_OMEGA, A_U, A_THETA_NH1,
  A_STEP_NM, A_VIOLATED, A_INDEX) = range(19, 36)
-N_AIRCRAFT_LANE = 36
+#: Then, after the lanes' rows, the trial of guard 10's error control: a state (N_STATE
+#: values per aircraft) and its commands (N_COMMAND), each read as an (N, fields) array.
+TRIAL_STATE_ROW = 36
+TRIAL_COMMAND_ROW = TRIAL_STATE_ROW + N_STATE
+N_AIRCRAFT_LANE = TRIAL_COMMAND_ROW + N_COMMAND
 #: First row of the neighbour grid's own scratch (``cells``, ``neighbour_grid.grid_rows``).
 _GRID = 0
 #: Fewest aircraft for which ``KernelScratch`` gives a world the neighbour grid: below it the
@@ -603,8 +586,8 @@ def _ordinary_run(
     """As many consecutive integration steps of one world as are ordinary, up to
     ``max_steps``, by the lane step's arithmetic: every flying aircraft without a flying
     neighbour within the sensing radius, no command at the cap, no angle beyond 3π, no
-    arrival or departure within reach and no loss of separation after the move (k = 2
-    only). The flying aircraft stay in the lanes of ``aircraft_lanes`` (``A_*`` rows, one
+    arrival or departure within reach, no loss of separation and no neighbour within the
+    sensing radius after the move (k = 2 only). The flying aircraft stay in the lanes of ``aircraft_lanes`` (``A_*`` rows, one
     column per aircraft) from the first of these steps to the last, and the state is
     written back once; a step that proves not ordinary is abandoned with nothing written
     (the scalar path flies it). ``step0``: steps done before this call (for the record).
@@ -717,19 +700,26 @@ def _ordinary_run(
             break
         new_min_sep2 = min_sep2
         lost = False
+        # Nor a pair within the sensing radius after the move: guard 10 controls that step.
         if cells is not None:
             _fill_grid(cells, lanes, A_X1, A_Y1, count, n)
             nx, ny, width, skin = cells_grid.prepare(cells, _GRID, n, _cell_nm(params))
             new_min_sep2, lost = cells_grid.separation(cells, _GRID, n, nx, ny, width, skin, min_sep2,
                                                        sep_min * sep_min, los_pairs, False)
+            lost |= cells_grid.any_within(cells, _GRID, n, nx, ny, r_sense2, inv_len)
         else:
             for a in range(count):
+                xa = lanes[A_X1, a] * inv_len
+                ya = lanes[A_Y1, a] * inv_len
                 for b in range(a + 1, count):
                     sx = lanes[A_X1, a] - lanes[A_X1, b]
                     sy = lanes[A_Y1, a] - lanes[A_Y1, b]
                     sep2 = sx * sx + sy * sy
                     lost |= sep2 < sep_min * sep_min
                     new_min_sep2 = min(new_min_sep2, sep2)
+                    rx = xa - lanes[A_X1, b] * inv_len
+                    ry = ya - lanes[A_Y1, b] * inv_len
+                    lost |= rx * rx + ry * ry < r_sense2
         if lost:
             abandoned = True
             break
@@ -829,6 +819,118 @@ def _commit_aircraft_lanes(state: np.ndarray, command: np.ndarray, lanes: np.nda
 # every call site, and nearly doubled the one-world path's first compilation (41 s of CPU
 # against 22 s, in one run on a loaded machine) for no speed.
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
+def _take_commands(source: np.ndarray, command: np.ndarray, status: np.ndarray) -> None:
+    """The columns ``_commands`` writes, of the flying aircraft, from ``source``."""
+    for i in range(status.shape[0]):
+        if status[i] != FLYING:
+            continue
+        for c in _COMMAND_COLUMNS:
+            command[i, c] = source[i, c]
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
+def _step_control(
+    state: np.ndarray,
+    command: np.ndarray,
+    trial_state: np.ndarray,
+    trial_command: np.ndarray,
+    grad: np.ndarray,
+    wind_x: float,
+    wind_y: float,
+    nf_consts: tuple,
+    params: np.ndarray,
+    inv_dt: float,
+    n_refined: int,
+    cells,
+) -> tuple[int, bool, bool, bool]:
+    """Guard 10: the sub-steps a step that its start does not refine is flown in, from a
+    trial of the full step. The trial moves every flying aircraft as ``_advance_world``
+    moves it over an unrefined step (the same arithmetic, so the same bits), into
+    ``trial_state``, and takes the law's commands there into ``trial_command`` (``grad``
+    is overwritten). Where no two aircraft are within the sensing radius at the step's
+    start or end, the step is flown whole (an ordinary step, as ``_ordinary_run`` and the
+    lane step fly it). Otherwise it is refined into ``n_refined`` sub-steps if the commands
+    at its end ask for it (guards 2, 8, 9, as at a step's start), else into as many as
+    bring the estimated local error of the positions within ``step_tolerance_nm``: the
+    difference of the step's scheme from the next order's, (5/12) dt |v₊ − 2v + v₋| for
+    AB2 and dt |v₊ − v| / 2 for Euler (v₋, v, v₊: an aircraft's ground velocity over the
+    last step, this one and, from the trial, the next), with Euler sub-steps, whose error
+    falls as 1 / (their number).
+
+    Returns (sub-steps, then ``_commands``' three flags at the trial's end: the commands
+    of the next step where this one is flown whole and no aircraft arrives or leaves)."""
+    n = state.shape[0]
+    dt = params[P_DT]
+    nm_per_kt_step = dt / SECONDS_PER_HOUR
+    for i in range(n):
+        for f in range(N_STATE):
+            trial_state[i, f] = state[i, f]
+    for i in range(n):
+        if state[i, S_STATUS] != FLYING:
+            continue
+        # As the move of ``_advance_world`` with n_sub = 1.
+        u = command[i, C_U]
+        vx = u * command[i, C_COS] + wind_x
+        vy = u * command[i, C_SIN] + wind_y
+        omega = command[i, C_OMEGA]
+        heading = state[i, S_HEADING]
+        if state[i, S_FRESH] == 0.0 and state[i, S_LAST_SUBSTEPS] <= 1.0:
+            x1 = state[i, S_X] + (1.5 * vx - 0.5 * state[i, S_VX_PREV]) * nm_per_kt_step
+            y1 = state[i, S_Y] + (1.5 * vy - 0.5 * state[i, S_VY_PREV]) * nm_per_kt_step
+            new_heading = heading + (1.5 * omega - 0.5 * state[i, S_OMEGA_PREV]) * dt
+        else:
+            x1 = state[i, S_X] + vx * nm_per_kt_step
+            y1 = state[i, S_Y] + vy * nm_per_kt_step
+            new_heading = heading + omega * dt
+        trial_state[i, S_VX_PREV] = vx
+        trial_state[i, S_VY_PREV] = vy
+        trial_state[i, S_OMEGA_PREV] = omega
+        trial_state[i, S_LAST_SUBSTEPS] = 1.0
+        trial_state[i, S_X] = x1
+        trial_state[i, S_Y] = y1
+        trial_state[i, S_HEADING] = _wrap(new_heading)
+        trial_state[i, S_AIRSPEED] = u
+        trial_state[i, S_THETA_NH] = command[i, C_THETA_NH]
+        trial_state[i, S_FRESH] = 0.0
+    any_flying, refine, outside = _commands(
+        trial_state, trial_state[:, S_X : S_Y + 1], trial_state[:, S_STATUS], grad, trial_command, nf_consts, params,
+        inv_dt, cells,
+    )
+    near = False
+    for i in range(n):
+        if state[i, S_STATUS] == FLYING and (command[i, C_NEAR] > 0 or trial_command[i, C_NEAR] > 0):
+            near = True
+    if not near:
+        return 1, any_flying, refine, outside
+    if refine:
+        return n_refined, any_flying, refine, outside
+    tolerance = params[nf.P_STEP_TOLERANCE]
+    if not tolerance > 0.0:
+        return 1, any_flying, refine, outside
+    worst = 0.0
+    for i in range(n):
+        if state[i, S_STATUS] != FLYING:
+            continue
+        vx = command[i, C_U] * command[i, C_COS]
+        vy = command[i, C_U] * command[i, C_SIN]
+        # The wind is constant: it cancels from the differences.
+        next_vx = trial_command[i, C_U] * trial_command[i, C_COS]
+        next_vy = trial_command[i, C_U] * trial_command[i, C_SIN]
+        if state[i, S_FRESH] == 0.0 and state[i, S_LAST_SUBSTEPS] <= 1.0:
+            ex = next_vx - 2.0 * vx + (state[i, S_VX_PREV] - wind_x)
+            ey = next_vy - 2.0 * vy + (state[i, S_VY_PREV] - wind_y)
+            error = (5.0 / 12.0) * math.sqrt(ex * ex + ey * ey) * nm_per_kt_step
+        else:
+            ex = next_vx - vx
+            ey = next_vy - vy
+            error = 0.5 * math.sqrt(ex * ex + ey * ey) * nm_per_kt_step
+        worst = max(worst, error)
+    if worst <= tolerance:
+        return 1, any_flying, refine, outside
+    return min(n_refined, int(math.ceil(worst / tolerance))), any_flying, refine, outside
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _advance_world(
     state: np.ndarray,
     waypoints: np.ndarray,
@@ -876,6 +978,9 @@ def _advance_world(
 
     _begin_world(state, waypoints, min_airspeed, max_airspeed, violation_steps, worst_excursion, steps_flown,
                  los_pairs, record)
+    # The trial of a step's error control (guard 10), in the scratch's rows after the lanes'.
+    trial_state = aircraft_lanes[TRIAL_STATE_ROW:TRIAL_COMMAND_ROW].reshape((n, N_STATE))
+    trial_command = aircraft_lanes[TRIAL_COMMAND_ROW:N_AIRCRAFT_LANE].reshape((n, N_COMMAND))
     if cells is not None:
         cells_grid.forget(cells, _GRID)
     min_sep2 = NO_PAIR_SEPARATION_NM * NO_PAIR_SEPARATION_NM
@@ -887,6 +992,9 @@ def _advance_world(
     # Typed int64 from the start (not the literal 0): numba compiles a callee once per
     # argument type, and ``_ordinary_run`` took a second compilation for a literal 0.
     step = np.int64(0)
+    # Guard 10's trial of a step flown whole gives the next step's commands.
+    next_ready = False
+    next_flying = next_refine = next_outside = False
     while step < n_steps:
         if ordinary_law:
             flew, step_violation, min_sep2, abandoned = _ordinary_run(
@@ -895,6 +1003,8 @@ def _advance_world(
                 record, record_every, step, los_pairs, cells,
             )
             step += flew
+            if flew > 0:
+                next_ready = False
             if step_violation:
                 violated = True
                 if stop_on_violation:
@@ -902,8 +1012,15 @@ def _advance_world(
             if not abandoned:
                 continue  # every step asked for was ordinary
             # The step the run abandoned is flown below.
-        any_flying, refine, outside = _commands(state, pos, status, grad, command, nf_consts, params, inv_dt,
-                                                cells)
+        if next_ready:
+            # The last step was flown whole and no aircraft arrived or left: its trial's
+            # commands are those of this step's start, bit for bit (guard 10).
+            _take_commands(trial_command, command, status)
+            any_flying, refine, outside = next_flying, next_refine, next_outside
+        else:
+            any_flying, refine, outside = _commands(state, pos, status, grad, command, nf_consts, params, inv_dt,
+                                                    cells)
+        next_ready = False
         if not any_flying:
             break
         # Step-size control at the law's singularity: where a command is saturated
@@ -916,6 +1033,12 @@ def _advance_world(
         n_sub = 1
         if refine and not (stop_on_violation and outside):
             n_sub = n_refined
+        elif n_refined > 1 and not (stop_on_violation and outside):
+            n_sub, next_flying, next_refine, next_outside = _step_control(
+                state, command, trial_state, trial_command, grad, wind_x, wind_y, nf_consts, params, inv_dt,
+                n_refined, cells,
+            )
+            next_ready = n_sub == 1
         h = dt / n_sub
         nm_per_kt_step = h / SECONDS_PER_HOUR
         step_violation = False
@@ -924,9 +1047,9 @@ def _advance_world(
             command[i, C_VIOLATED] = 0.0
         for sub in range(n_sub):
             if sub > 0:
-                any_flying, _, _ = _commands(
-                    state, pos, status, grad, command, nf_consts, params, n_sub * inv_dt, cells
-                )
+                # inv_dt, not n_sub * inv_dt: the previous sub-step's length is dt /
+                # S_LAST_SUBSTEPS, which ``_commands`` divides θ_nh's change by (guard 5).
+                any_flying, _, _ = _commands(state, pos, status, grad, command, nf_consts, params, inv_dt, cells)
                 if not any_flying:
                     break
             # Move, then check arrival, departure and the envelope.
@@ -991,8 +1114,10 @@ def _advance_world(
                 near = (x1 - dest_x) ** 2 + (y1 - dest_y) ** 2 <= reach * reach
                 if near and _segment_distance(x0, y0, x1, y1, dest_x, dest_y) <= delta:
                     status[i] = ARRIVED
+                    next_ready = False
                 elif x1 * x1 + y1 * y1 >= exit_radius * exit_radius:  # guard 7
                     status[i] = LEFT
+                    next_ready = False
 
             # Separation among the aircraft that flew this sub-step (one that arrived on
             # it still counts: it was in the airspace during the step).
@@ -1320,16 +1445,20 @@ def _lane_step(count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarra
     new_min = world[W_NEW_MIN_SEP2]
     for b in range(count):
         new_min[b] = world[W_MIN_SEP2, b]
+    # Nor a loss of separation after the move, nor a pair within the sensing radius then
+    # (guard 10 controls that step).
     for i in range(0 if pairs_by_grid else n):
         for j in range(i + 1, n):
             for b in range(count):
                 sx = temp[T_X1, i, b] - temp[T_X1, j, b]
                 sy = temp[T_Y1, i, b] - temp[T_Y1, j, b]
+                rx = temp[T_X1, i, b] * inv_len - temp[T_X1, j, b] * inv_len
+                ry = temp[T_Y1, i, b] * inv_len - temp[T_Y1, j, b] * inv_len
                 sep2 = sx * sx + sy * sy
                 least = new_min[b]
                 flag = ordinary[b]
                 new_min[b] = sep2 if sep2 < least else least
-                ordinary[b] = 0.0 if sep2 < sep_min2 else flag
+                ordinary[b] = 0.0 if (sep2 < sep_min2) | (rx * rx + ry * ry < r_sense2) else flag
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
@@ -1338,8 +1467,9 @@ def _lane_pairs_by_grid(b0: int, count: int, lanes: np.ndarray, temp: np.ndarray
                         nf_consts: tuple) -> None:
     """``_lane_step``'s two loops over pairs, through each world's neighbour grid
     (``cells``, B rows × N), for the worlds whose lane step is
-    still ordinary: not where a pair is within the sensing radius at the start, nor where
-    one is closer than the separation minimum after the move; ``W_NEW_MIN_SEP2`` exact. A
+    still ordinary: not where a pair is within the sensing radius at the start or after
+    the move, nor where one is closer than the separation minimum after the move;
+    ``W_NEW_MIN_SEP2`` exact. A
     world at a time (no SIMD lanes), in O(N) instead of O(N²); where the lane step is not
     the world's, what it left is never read."""
     n = lanes.shape[1]
@@ -1366,7 +1496,7 @@ def _lane_pairs_by_grid(b0: int, count: int, lanes: np.ndarray, temp: np.ndarray
         least2, lost = cells_grid.separation(world_cells, _GRID, n, nx, ny, width, skin, world[W_MIN_SEP2, k],
                                              sep_min * sep_min, los_pairs[b0 + k], False)
         world[W_NEW_MIN_SEP2, k] = least2
-        if lost:
+        if lost or cells_grid.any_within(world_cells, _GRID, n, nx, ny, r_sense2, inv_len):
             world[W_ORDINARY, k] = 0.0
 
 

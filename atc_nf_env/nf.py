@@ -95,7 +95,8 @@ P_RIGHT_TURN = 23  # right-hand rule at the singularity: largest rotation of θ_
 P_RIGHT_TURN_FROM = 24  # 1/P_i term of (5a), kt, where the right-hand rule starts to act
 P_RIGHT_TURN_FULL = 25  # 1/P_i term of (5a), kt, from which it acts in full
 P_SUBSTEP_FROM = 26  # 1/P_i term of (5a), kt, above which a step is flown in sub-steps
-N_PARAMS = 27
+P_STEP_TOLERANCE = 27  # local error allowed to a full step among neighbours, nm (0: no error control)
+N_PARAMS = 28
 
 # Status of an aircraft (stored as float in the state array).
 FLYING = 0.0

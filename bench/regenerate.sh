@@ -82,7 +82,7 @@ if [[ $WHAT == all || $WHAT == benchmarks ]]; then
     run shield-stall-mlp "$PYTHON" bench/shield_stall_study.py --models agents/models/finetuned_ppo.zip,agents/models/imitation_bc.zip,agents/models/imitation_dagger.zip --scenarios random-4,random-6 --seeds 100 --section shield-stall-mlp --write
     run shield-adversarial "$PYTHON" bench/shield_adversarial_study.py --seeds 10 --write
     run substep-watch "$PYTHON" bench/substep_watch_study.py --seeds 8 --write
-    run integration-convergence "$PYTHON" bench/integration_convergence_study.py --seeds 30 --write
+    run integration-convergence "$PYTHON" bench/integration_convergence_study.py --seeds 200 --write
     run agent-forward "$PYTHON" bench/bench_agent_forward.py --seeds 20 --scenarios converging-4,random-6 --write
     run layout-probe "$PYTHON" bench/layout_probe.py --rounds 31 --write
     run nf-floor "$PYTHON" bench/nf_floor_study.py --shield stream-30,stream-60 --write
