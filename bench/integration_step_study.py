@@ -242,11 +242,12 @@ def main(argv: list[str] | None = None) -> int:
             "rotation by 2π/N. The exact flow keeps both symmetries and stalls where ∇Φ_i vanishes "
             "(a saddle of the joint flow, where the law has no solution). The right-hand rule (ICAO "
             "Annex 2: aircraft approaching head-on each turn right) breaks the reflection by the law, "
-            "and the watch on the 1/P_i term makes the rule's ramp be entered in sub-steps even where "
-            "that term would cross it within one full step. The rotation symmetry is left: the pinwheel "
-            "the aircraft fly around the centre is unstable and splits by rounding, so the exact "
-            "encounter's figure is one draw from a spread. The ensemble below measures that spread: "
-            f"{ENSEMBLE_SIZE} starts perturbed by {PERTURBATION_NM:g} nm (far below any physical "
+            "and the watch on the 1/P_i term (at a step's start and, by the error control of guard 10, at "
+            "its end) makes the rule's ramp be entered in sub-steps even where that term would cross it "
+            "within one full step. The rotation symmetry is left: the aircraft fly a pinwheel around the "
+            "centre, which settles in one of a few modes; which one can change with the step, and, from "
+            "6 aircraft, with perturbations far below rounding's. The ensemble below measures that "
+            f"spread: {ENSEMBLE_SIZE} starts perturbed by {PERTURBATION_NM:g} nm (far below any physical "
             "meaning) at each step, mean ± standard deviation [min, max] of the minimum separation.",
             "",
             *ensembles["default"][0],
@@ -262,7 +263,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"{physics}: the mean {'moves by less' if ensembles[physics][1] < goal_nm else 'moves by more'} "
                 f"than {goal_nm:g} nm on halving"
                 + (", so what remains of the first table's moves is the spread within one step, not the step."
-                   if ensembles[physics][1] < goal_nm else ", so it has not converged at these steps.")
+                   if ensembles[physics][1] < goal_nm
+                   else ": where the ensemble has no spread (every start flies one mode) its mean moves as the "
+                   "exact encounter's mode does.")
                 for physics in ensembles
             ),
             "",

@@ -2,8 +2,8 @@
 
 The kernel flies a step in 0.1-s sub-steps where any aircraft's 1/P_i term of (5a),
 (∂Φ_i/∂t)⁺ / |P_i|, exceeds ``SimConfig.substep_from_kt`` (the watch), so that the
-right-hand rule's ramp, from ``right_turn_from_kt`` = 100 kt, is entered finely whatever
-the step. For each threshold:
+right-hand rule's ramp, from ``right_turn_from_kt``, is entered finely whatever the
+step (at a step's start, and among neighbours at its end: guard 10). For each threshold:
 
 * at the saddle (the NF alone, converging-3 ... 8 without wind): the largest move of the
   minimum separation when a step of 5 s or less is halved, for the exact encounter and
@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"| {label} | {moves[t][0]:.2f} nm | {moves[t][1]:.2f} nm | {ratios} |")
     lines += [
         "",
-        f"The default, {default:g} kt, is half the right-hand rule's onset ({SimConfig().right_turn_from_kt:g} kt).",
+        f"The default watch is {default:g} kt; the right-hand rule acts from {SimConfig().right_turn_from_kt:g} kt.",
         "",
     ]
     text = "\n".join(lines)
