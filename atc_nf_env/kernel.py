@@ -104,9 +104,10 @@ guards 8 and 10, which only fly some of its steps finer):
    the ramp tuned before θ̇_nh was taken at its true rate (guard 5), perturbed converging
    encounters moved by up to 3 nm with dt and hit the cap; 45° from 200 to 800 kt
    settles both families. What is left: the rule keeps the encounter's rotation
-   symmetry, and the pinwheel it flies around the centre is unstable and splits by
-   rounding, so a converging encounter's minimum separation is one draw from a spread of
-   a few tenths of a nm (BENCHMARKS.md, "integration-convergence").
+   symmetry, and the pinwheel it flies around the centre settles in one of a few modes;
+   which one can change with dt, so a converging encounter's minimum separation moves
+   by up to about 0.3 nm on halving the step (BENCHMARKS.md, the saddle and
+   "integration-convergence").
 10. Error control among neighbours. An integration step with two aircraft within the
    sensing radius at its start or at its end is first tried whole: every aircraft is
    moved as the step would move it, and the law's commands are taken there. If they ask

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import run_episode
@@ -57,6 +59,29 @@ def test_a_steps_trial_commands_are_the_commands_taken_afresh():
     assert np.array_equal(one_call, step_calls)
     # ... and the control acted in that half hour: without it the end differs.
     assert not np.array_equal(one_call, _encounter_end(scenario, 880011, config.replace(step_tolerance_nm=0.0), 1800.0))
+
+
+@settings(max_examples=10, deadline=None)
+@given(
+    n=st.integers(3, 8),
+    seed=st.integers(0, 2**31),
+    wind=st.tuples(st.floats(-40.0, 40.0), st.floats(-40.0, 40.0)),
+    call_s=st.sampled_from([5.0, 15.0, 60.0]),
+)
+def test_a_flight_in_short_calls_flies_the_same_bits_as_in_one_call(n, seed, wind, call_s):
+    # Calls of any length: a call starts with commands taken afresh where one long call
+    # reuses a trial's, and ends a run of steps wherever it ends.
+    scenario = random_encounter(n, seed=seed)
+    params = SimConfig().to_params(scenario.workspace_radius_nm)
+    waypoints = scenario.dest_xy[None].copy()
+    wind_kt = np.array([wind])
+    ends = []
+    for length in (2400.0, call_s):
+        state = initial_state(scenario)
+        for _ in range(int(round(2400.0 / length))):
+            advance(state, waypoints, wind_kt, length, params)
+        ends.append(state)
+    assert np.array_equal(ends[0], ends[1])
 
 
 def test_the_control_leaves_flights_without_neighbours_bit_for_bit_unchanged():
