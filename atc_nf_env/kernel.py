@@ -830,6 +830,50 @@ def _take_commands(source: np.ndarray, command: np.ndarray, status: np.ndarray) 
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
+def _move_aircraft(
+    source: np.ndarray, target: np.ndarray, command: np.ndarray, i: int, wind_x: float, wind_y: float, h: float,
+    n_sub: int,
+) -> tuple[float, float, float, float]:
+    """Aircraft ``i`` of ``source`` moved over one (sub-)step of ``h`` s under its
+    ``command`` and the wind (kt), written into ``target`` (``source`` itself, or guard
+    10's trial): the one move of the general path, so that a trial and the step it tries
+    fly the same bits. ``n_sub``: the sub-steps of the step this one belongs to. Returns
+    (x0, y0, x1, y1) nm."""
+    u = command[i, C_U]
+    heading = source[i, S_HEADING]
+    x0 = source[i, S_X]
+    y0 = source[i, S_Y]
+    vx = u * command[i, C_COS] + wind_x
+    vy = u * command[i, C_SIN] + wind_y
+    omega = command[i, C_OMEGA]
+    nm_per_kt_step = h / SECONDS_PER_HOUR
+    # Second-order Adams-Bashforth (AB2): the airspeed falls steadily as the waypoint
+    # nears, and explicit Euler's O(dt) error in that distance is what the convergence
+    # study saw. AB2 needs the previous step's rates at this step's length; after a
+    # waypoint switch they belong to another law, and within or after a refined step the
+    # command is not smooth (or the step length changed), so those steps are plain Euler.
+    if source[i, S_FRESH] == 0.0 and source[i, S_LAST_SUBSTEPS] <= 1.0 and n_sub == 1:
+        x1 = x0 + (1.5 * vx - 0.5 * source[i, S_VX_PREV]) * nm_per_kt_step
+        y1 = y0 + (1.5 * vy - 0.5 * source[i, S_VY_PREV]) * nm_per_kt_step
+        new_heading = heading + (1.5 * omega - 0.5 * source[i, S_OMEGA_PREV]) * h
+    else:
+        x1 = x0 + vx * nm_per_kt_step
+        y1 = y0 + vy * nm_per_kt_step
+        new_heading = heading + omega * h
+    target[i, S_VX_PREV] = vx
+    target[i, S_VY_PREV] = vy
+    target[i, S_OMEGA_PREV] = omega
+    target[i, S_LAST_SUBSTEPS] = n_sub
+    target[i, S_X] = x1
+    target[i, S_Y] = y1
+    target[i, S_HEADING] = _wrap(new_heading)
+    target[i, S_AIRSPEED] = u
+    target[i, S_THETA_NH] = command[i, C_THETA_NH]
+    target[i, S_FRESH] = 0.0
+    return x0, y0, x1, y1
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
 def _step_control(
     state: np.ndarray,
     command: np.ndarray,
@@ -845,8 +889,8 @@ def _step_control(
     cells,
 ) -> tuple[int, bool, bool, bool]:
     """Guard 10: the sub-steps a step that its start does not refine is flown in, from a
-    trial of the full step. The trial moves every flying aircraft as ``_advance_world``
-    moves it over an unrefined step (the same arithmetic, so the same bits), into
+    trial of the full step. The trial moves every flying aircraft by ``_move_aircraft``
+    over an unrefined step, as ``_advance_world`` does (so the same bits), into
     ``trial_state``, and takes the law's commands there into ``trial_command`` (``grad``
     is overwritten). Where no two aircraft are within the sensing radius at the step's
     start or end, the step is flown whole (an ordinary step, as ``_ordinary_run`` and the
@@ -869,30 +913,7 @@ def _step_control(
     for i in range(n):
         if state[i, S_STATUS] != FLYING:
             continue
-        # As the move of ``_advance_world`` with n_sub = 1.
-        u = command[i, C_U]
-        vx = u * command[i, C_COS] + wind_x
-        vy = u * command[i, C_SIN] + wind_y
-        omega = command[i, C_OMEGA]
-        heading = state[i, S_HEADING]
-        if state[i, S_FRESH] == 0.0 and state[i, S_LAST_SUBSTEPS] <= 1.0:
-            x1 = state[i, S_X] + (1.5 * vx - 0.5 * state[i, S_VX_PREV]) * nm_per_kt_step
-            y1 = state[i, S_Y] + (1.5 * vy - 0.5 * state[i, S_VY_PREV]) * nm_per_kt_step
-            new_heading = heading + (1.5 * omega - 0.5 * state[i, S_OMEGA_PREV]) * dt
-        else:
-            x1 = state[i, S_X] + vx * nm_per_kt_step
-            y1 = state[i, S_Y] + vy * nm_per_kt_step
-            new_heading = heading + omega * dt
-        trial_state[i, S_VX_PREV] = vx
-        trial_state[i, S_VY_PREV] = vy
-        trial_state[i, S_OMEGA_PREV] = omega
-        trial_state[i, S_LAST_SUBSTEPS] = 1.0
-        trial_state[i, S_X] = x1
-        trial_state[i, S_Y] = y1
-        trial_state[i, S_HEADING] = _wrap(new_heading)
-        trial_state[i, S_AIRSPEED] = u
-        trial_state[i, S_THETA_NH] = command[i, C_THETA_NH]
-        trial_state[i, S_FRESH] = 0.0
+        _move_aircraft(state, trial_state, command, i, wind_x, wind_y, dt, 1)
     any_flying, refine, outside = _commands(
         trial_state, trial_state[:, S_X : S_Y + 1], trial_state[:, S_STATUS], grad, trial_command, nf_consts, params,
         inv_dt, cells,
@@ -1041,7 +1062,6 @@ def _advance_world(
             )
             next_ready = n_sub == 1
         h = dt / n_sub
-        nm_per_kt_step = h / SECONDS_PER_HOUR
         step_violation = False
         for i in range(n):
             command[i, C_FLEW] = 0.0
@@ -1068,36 +1088,7 @@ def _advance_world(
                     command[i, C_STEP_MIN] = min(command[i, C_STEP_MIN], u)
                     command[i, C_STEP_MAX] = max(command[i, C_STEP_MAX], u)
                 command[i, C_FLEW] = 2.0  # flew this sub-step (1: flew an earlier one)
-                heading = state[i, S_HEADING]
-                x0 = state[i, S_X]
-                y0 = state[i, S_Y]
-                vx = u * command[i, C_COS] + wind_x
-                vy = u * command[i, C_SIN] + wind_y
-                omega = command[i, C_OMEGA]
-                # Second-order Adams-Bashforth (AB2): the airspeed falls steadily as the
-                # waypoint nears, and explicit Euler's O(dt) error in that distance is what
-                # the convergence study saw. AB2 needs the previous step's rates at this
-                # step's length; after a waypoint switch they belong to another law, and
-                # within or after a refined step the command is not smooth (or the step
-                # length changed), so those steps are plain Euler.
-                if state[i, S_FRESH] == 0.0 and state[i, S_LAST_SUBSTEPS] <= 1.0 and n_sub == 1:
-                    x1 = x0 + (1.5 * vx - 0.5 * state[i, S_VX_PREV]) * nm_per_kt_step
-                    y1 = y0 + (1.5 * vy - 0.5 * state[i, S_VY_PREV]) * nm_per_kt_step
-                    new_heading = heading + (1.5 * omega - 0.5 * state[i, S_OMEGA_PREV]) * h
-                else:
-                    x1 = x0 + vx * nm_per_kt_step
-                    y1 = y0 + vy * nm_per_kt_step
-                    new_heading = heading + omega * h
-                state[i, S_VX_PREV] = vx
-                state[i, S_VY_PREV] = vy
-                state[i, S_OMEGA_PREV] = omega
-                state[i, S_LAST_SUBSTEPS] = n_sub
-                state[i, S_X] = x1
-                state[i, S_Y] = y1
-                state[i, S_HEADING] = _wrap(new_heading)
-                state[i, S_AIRSPEED] = u
-                state[i, S_THETA_NH] = command[i, C_THETA_NH]
-                state[i, S_FRESH] = 0.0
+                x0, y0, x1, y1 = _move_aircraft(state, state, command, i, wind_x, wind_y, h, n_sub)
                 state[i, S_TIME] += h
                 step_nm = math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
                 state[i, S_PATH] += step_nm
