@@ -118,7 +118,7 @@ guards 8 and 10, which only fly some of its steps finer):
    ``step_tolerance_nm`` (0.002 nm) the step is flown in as many Euler sub-steps as bring
    it within (their error falls as 1 / their number), at most ceil(dt / ``substep_s``).
    A step flown whole keeps its trial's commands for the next step (the trial moved every
-   aircraft in the same arithmetic, so they are the same bits), unless an aircraft
+   aircraft by the step's own move, ``_move_aircraft``, so they are the same bits), unless an aircraft
    arrived or left. Why: at 5 s, AB2 enters a pass late and coarse (the neighbour's
    repulsion switches on within one step as it enters the sensing radius), and the NF
    alone on random encounters missed the converged minimum separation by up to 2 nm;

@@ -6,7 +6,7 @@
 # (atc_nf_env.build.PACKAGE_SOURCES and baselines/), on an otherwise idle machine: the
 # tables' timings are measured as they are written. Logs: out/regenerate/NN-name.log.
 #
-#   bash bench/regenerate.sh            # everything (about 45 min on 2 cores)
+#   bash bench/regenerate.sh            # everything (about 105 min on 2 cores)
 #   bash bench/regenerate.sh studies    # REPRODUCTION.md, docs/figures, agents/results/, the model zoo table, cards
 #   bash bench/regenerate.sh benchmarks # BENCHMARKS.md
 #   FROM=2 bash bench/regenerate.sh     # from the second command on (after a failure)
