@@ -131,14 +131,24 @@ def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
                             "progress over --progress-periods periods is held on its recovery waypoint "
                             "(default: off)")
     group.add_argument("--progress-periods", type=_positive_int, help="the progress rule's window (default: 3)")
+    group.add_argument("--recovery-angle-deg", type=float,
+                       help="homing: the chain's start and the heading-relative share of the proposal turn at most "
+                            "this far from the heading, degrees, in (0, 90) (default: 60; 70 in the dense-traffic "
+                            "recipe, see docs/mpc.md)")
 
 
 def _policy_kwargs(args: argparse.Namespace) -> dict:
     names = ("extractions", "horizon", "wind_model", "constraint_check", "acceptance", "cost_exponent", "proposal",
-             "search", "sampling", "cluster_radius_nm", "progress_fraction", "progress_periods")
+             "search", "sampling", "cluster_radius_nm", "progress_fraction", "progress_periods", "recovery_angle_deg")
     kwargs = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
     if kwargs and args.policy != "mpc":
         raise ValueError(f"--{next(iter(kwargs)).replace('_', '-')} applies to --policy mpc only")
+    if "recovery_angle_deg" in kwargs:
+        # The MPC's setting is in rad; the option is checked in its own unit, so the error names it.
+        degrees = kwargs.pop("recovery_angle_deg")
+        if not (math.isfinite(degrees) and 0.0 < degrees < 90.0):
+            raise ValueError(f"--recovery-angle-deg {degrees!r}: must be a number in (0, 90)")
+        kwargs["recovery_angle_rad"] = math.radians(degrees)
     return kwargs
 
 

@@ -135,6 +135,24 @@ def test_cli_rejects_bad_values(capsys):
         main(["evaluate", "--extractions", "0", "--policy", "mpc"])
 
 
+def test_recovery_angle_option_reaches_the_mpc_in_radians_and_bad_angles_are_refused(capsys):
+    import argparse
+    import math
+
+    from atc_nf_env.cli import _policy_kwargs
+
+    kwargs = _policy_kwargs(argparse.Namespace(policy="mpc", recovery_angle_deg=70.0, sampling="per-cluster"))
+    assert kwargs == {"sampling": "per-cluster", "recovery_angle_rad": math.radians(70.0)}
+    from baselines import MCMCMPC
+
+    assert MCMCMPC(**kwargs).settings.recovery_angle_rad == math.radians(70.0)
+    for bad in ("90", "0", "-5", "nan", "inf"):
+        assert main(["fly", "--policy", "mpc", "--recovery-angle-deg", bad]) == 2, bad
+        assert "--recovery-angle-deg" in capsys.readouterr().err, bad
+    assert main(["fly", "--policy", "nf", "--recovery-angle-deg", "70"]) == 2
+    assert "--recovery-angle-deg applies to --policy mpc only" in capsys.readouterr().err
+
+
 def test_ray_backend_on_a_local_cluster():
     pytest.importorskip("ray")
     study = Study(policy="nf", scenario="converging-3", wind_sigma_mps=5.17)
