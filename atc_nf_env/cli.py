@@ -133,8 +133,8 @@ def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--progress-periods", type=_positive_int, help="the progress rule's window (default: 3)")
     group.add_argument("--recovery-angle-deg", type=float,
                        help="homing: the chain's start and the heading-relative share of the proposal turn at most "
-                            "this far from the heading, degrees, in (0, 90) (default: 60; 70 in the dense-traffic "
-                            "recipe, see docs/mpc.md)")
+                            "this far from the heading, degrees, in (0, 90) (default: 60; what 70 trades in dense "
+                            "traffic: docs/mpc.md)")
 
 
 def _policy_kwargs(args: argparse.Namespace) -> dict:
