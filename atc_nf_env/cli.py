@@ -135,20 +135,26 @@ def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
                        help="homing: the chain's start and the heading-relative share of the proposal turn at most "
                             "this far from the heading, degrees, in (0, 90) (default: 60; what 70 trades in dense "
                             "traffic: docs/mpc.md)")
+    group.add_argument("--approach-angle-deg", type=float,
+                       help="homing: within 60 nm of its destination an aircraft turns up to this far from its "
+                            "heading instead, degrees, in (0, 90) (default: no difference near home; against orbits "
+                            "near home: docs/mpc.md)")
 
 
 def _policy_kwargs(args: argparse.Namespace) -> dict:
     names = ("extractions", "horizon", "wind_model", "constraint_check", "acceptance", "cost_exponent", "proposal",
-             "search", "sampling", "cluster_radius_nm", "progress_fraction", "progress_periods", "recovery_angle_deg")
+             "search", "sampling", "cluster_radius_nm", "progress_fraction", "progress_periods", "recovery_angle_deg",
+             "approach_angle_deg")
     kwargs = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
     if kwargs and args.policy != "mpc":
         raise ValueError(f"--{next(iter(kwargs)).replace('_', '-')} applies to --policy mpc only")
-    if "recovery_angle_deg" in kwargs:
-        # The MPC's setting is in rad; the option is checked in its own unit, so the error names it.
-        degrees = kwargs.pop("recovery_angle_deg")
-        if not (math.isfinite(degrees) and 0.0 < degrees < 90.0):
-            raise ValueError(f"--recovery-angle-deg {degrees!r}: must be a number in (0, 90)")
-        kwargs["recovery_angle_rad"] = math.radians(degrees)
+    for name in ("recovery_angle", "approach_angle"):
+        if f"{name}_deg" in kwargs:
+            # The MPC's settings are in rad; the option is checked in its own unit, so the error names it.
+            degrees = kwargs.pop(f"{name}_deg")
+            if not (math.isfinite(degrees) and 0.0 < degrees < 90.0):
+                raise ValueError(f"--{name.replace('_', '-')}-deg {degrees!r}: must be a number in (0, 90)")
+            kwargs[f"{name}_rad"] = math.radians(degrees)
     return kwargs
 
 

@@ -84,6 +84,7 @@ def homing_mixture_draws(
     count: int,
     heading_share: float,
     distance_std_nm: float,
+    turn_limit_rad: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``count`` draws of the "homing" proposal's waypoints of N aircraft: directions (count,
     N) rad and distances (count, N) nm.
@@ -93,14 +94,18 @@ def homing_mixture_draws(
     ±``settings.angle_range_rad`` around its bearing (N,) rad to the destination; the
     distance is normal around ``settings.distance_mean_nm`` with ``distance_std_nm``. The
     MCMC-MPC draws its candidates from it, and the safety filter its sampled alternatives.
+    ``turn_limit_rad``: (N,) each aircraft's own half-width around its heading instead of
+    ``settings.recovery_angle_rad``, rad (the MPC widens it near home:
+    ``MPCSettings.approach_angle_rad``).
     """
     n = heading.shape[0]
+    turn = settings.recovery_angle_rad if turn_limit_rad is None else np.asarray(turn_limit_rad, dtype=float)[None, :]
     distance = rng.normal(settings.distance_mean_nm, distance_std_nm, (count, n))
     around_heading = rng.random((count, n)) < heading_share
     angle = rng.uniform(-1.0, 1.0, (count, n))
     direction = np.where(
         around_heading,
-        heading[None, :] + settings.recovery_angle_rad * angle,
+        heading[None, :] + turn * angle,
         bearing[None, :] + settings.angle_range_rad * angle,
     )
     return direction, distance

@@ -184,6 +184,15 @@ without them):
   safety filter's hand-over, whose docstring says why). It stays held until it arrives;
   a wider round, after one without a feasible candidate, samples it again. In a traffic
   stream a slot's next flight starts unheld.
+* Turning near home (``approach_angle_rad``). A recovery turn of at most
+  ``recovery_angle_rad`` (60°) a 5-minute period circles about 35 nm out, at 454 kt: an
+  aircraft that passes beside its destination badly aligned can orbit it for most of an
+  hour, wider than the 5-nm arrival radius, each circle costing more within the horizon
+  than the one before it saved. With ``approach_angle_rad`` set, an aircraft within
+  ``shield.APPROACH_RADIUS_NM`` (60 nm) of its destination turns up to that angle
+  instead (its heading share of the proposal, its start direction, the progress rule's
+  recovery waypoint); elsewhere nothing changes, so a crowd far from home is searched as
+  before. The candidates stay checked against the envelope like any other.
 
 Prediction wind and fallback
 ----------------------------
@@ -333,6 +342,11 @@ class MPCSettings:
             454 kt (or of its remaining distance, if less) over ``progress_periods``
             periods is held on its recovery waypoint until it stops flying.
         progress_periods: the progress rule's window, periods.
+        approach_angle_rad: "homing": within ``shield.APPROACH_RADIUS_NM`` (60 nm) of its
+            destination an aircraft turns up to this far from its heading (its share of
+            the proposal around the heading, and the chain's start) instead of
+            ``recovery_angle_rad``, rad, in (0, π/2); None (the default): no difference
+            near home. See "Turning near home".
     """
 
     period_s: float = DECISION_PERIOD_S
@@ -358,6 +372,7 @@ class MPCSettings:
     cluster_radius_nm: float = 30.0
     progress_fraction: float | None = None
     progress_periods: int = 3
+    approach_angle_rad: float | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.extractions, (int, np.integer)) or self.extractions < 1:
@@ -377,6 +392,11 @@ class MPCSettings:
             raise ValueError(f"recovery_fraction = {self.recovery_fraction!r}: must be a number in [0, 1]")
         if not (isinstance(self.recovery_angle_rad, (int, float)) and 0.0 < self.recovery_angle_rad < math.pi / 2):
             raise ValueError(f"recovery_angle_rad = {self.recovery_angle_rad!r}: must be a number in (0, π/2)")
+        if self.approach_angle_rad is not None and (
+            isinstance(self.approach_angle_rad, bool)
+            or not (isinstance(self.approach_angle_rad, (int, float)) and 0.0 < self.approach_angle_rad < math.pi / 2)
+        ):
+            raise ValueError(f"approach_angle_rad = {self.approach_angle_rad!r}: must be None or a number in (0, π/2)")
         if self.progress_fraction is not None and not (
             isinstance(self.progress_fraction, (int, float)) and 0.0 < self.progress_fraction <= 1.0
         ):
@@ -832,7 +852,8 @@ class MCMCMPC:
         # Round r leaves the paper's angles a share (1 − f) / 2^r.
         f = 1.0 - (1.0 - s.recovery_fraction) / 2**round_index
         sigma = s.distance_std_nm * (1 + round_index)
-        direction, distance = homing_mixture_draws(self._rng, s, heading, bearing, s.extractions, f, sigma)
+        turn = self._turn_limits(view)
+        direction, distance = homing_mixture_draws(self._rng, s, heading, bearing, s.extractions, f, sigma, turn)
         home = self._start_directions(view, bearing, f)
         home_distance = np.full(home.shape, s.home_distance_nm)
         if start is not None:
@@ -845,10 +866,8 @@ class MCMCMPC:
             distance[:, held] = home_distance[held]
         z = (distance - s.distance_mean_nm) / sigma
         from_bearing = np.abs(_wrap(direction - bearing[None, :])) <= s.angle_range_rad + 1e-12
-        from_heading = np.abs(_wrap(direction - heading[None, :])) <= s.recovery_angle_rad + 1e-12
-        density = (1.0 - f) * from_bearing / (2.0 * s.angle_range_rad) + f * from_heading / (
-            2.0 * s.recovery_angle_rad
-        )
+        from_heading = np.abs(_wrap(direction - heading[None, :])) <= turn[None, :] + 1e-12
+        density = (1.0 - f) * from_bearing / (2.0 * s.angle_range_rad) + f * from_heading / (2.0 * turn[None, :])
         log_angle = np.log(np.maximum(density, 1e-300))
         drawn = view.flying if held is None else view.flying & ~held
         log_g = (-0.5 * z**2 + log_angle)[:, drawn].sum(axis=1)
@@ -866,13 +885,25 @@ class MCMCMPC:
         if heading_share == 0.0:
             return bearing.copy()  # outside the paper's support otherwise
         error = _wrap(bearing - heading)
-        home = heading + np.clip(error, -s.recovery_angle_rad, s.recovery_angle_rad)
+        turn = self._turn_limits(view)
+        home = heading + np.clip(error, -turn, turn)
         if self._stalled.any():
             to_dest = view.destinations - view.positions
             straight = (self._stalled & view.flying & (np.hypot(to_dest[:, 0], to_dest[:, 1]) < APPROACH_RADIUS_NM)
                         & (np.abs(error) > APPROACH_TURN_RAD))
             home = np.where(straight, heading, home)
         return home
+
+    def _turn_limits(self, view: WorldView) -> np.ndarray:
+        """(N,) rad: how far each aircraft's heading share of the proposal and its start
+        direction may turn from its heading: ``approach_angle_rad`` within
+        ``APPROACH_RADIUS_NM`` of its destination, ``recovery_angle_rad`` elsewhere."""
+        s = self.settings
+        turn = np.full(len(view.headings), s.recovery_angle_rad)
+        if s.approach_angle_rad is not None:
+            to_dest = view.destinations - view.positions
+            turn[np.hypot(to_dest[:, 0], to_dest[:, 1]) < APPROACH_RADIUS_NM] = s.approach_angle_rad
+        return turn
 
     def _start_waypoints(self, view: WorldView) -> np.ndarray:
         """The chain's initial state Θ_0 (N, 2) nm, as ``_propose`` makes its candidate 0."""

@@ -14,6 +14,9 @@ Flies ``baselines.MCMCMPC`` on converging-N and random-N encounters of many airc
 - ``per-cluster-70``: ``per-cluster`` with ``recovery_angle_rad`` 70° instead of 60° (the
   chain's start and the heading-relative share of the proposal turn up to 70° a period).
   Not in the default ``--settings``.
+- ``per-cluster-approach-80``: ``per-cluster`` with ``approach_angle_rad`` 80°: within
+  60 nm of home an aircraft turns up to 80° a period (60° elsewhere), against orbits near
+  home. Not in the default ``--settings``.
 
 Per row: runs; runs with every aircraft home; runs with a loss of separation; runs with
 any integration step outside [366, 540] kt and the worst excursion; runs with a fallback
@@ -56,6 +59,9 @@ SETTINGS = {
     # instead of 60° a period: near home, 60° a period circles ~35 nm out (docs/mpc.md).
     "per-cluster-70": {"sampling": "per-cluster", "progress_fraction": 0.5, "progress_periods": 6,
                        "recovery_angle_rad": math.radians(70.0)},
+    # The same turning up to 80° only within 60 nm of home, where the orbits are.
+    "per-cluster-approach-80": {"sampling": "per-cluster", "progress_fraction": 0.5, "progress_periods": 6,
+                                "approach_angle_rad": math.radians(80.0)},
 }
 #: What ``--settings`` flies when left out (the tables written before "per-cluster-70").
 DEFAULT_SETTINGS = ("joint", "dense", "per-cluster")

@@ -135,22 +135,24 @@ def test_cli_rejects_bad_values(capsys):
         main(["evaluate", "--extractions", "0", "--policy", "mpc"])
 
 
-def test_recovery_angle_option_reaches_the_mpc_in_radians_and_bad_angles_are_refused(capsys):
+@pytest.mark.parametrize("name", ["recovery_angle", "approach_angle"])
+def test_angle_options_reach_the_mpc_in_radians_and_bad_angles_are_refused(capsys, name):
     import argparse
     import math
 
     from atc_nf_env.cli import _policy_kwargs
 
-    kwargs = _policy_kwargs(argparse.Namespace(policy="mpc", recovery_angle_deg=70.0, sampling="per-cluster"))
-    assert kwargs == {"sampling": "per-cluster", "recovery_angle_rad": math.radians(70.0)}
+    option = f"--{name.replace('_', '-')}-deg"
+    kwargs = _policy_kwargs(argparse.Namespace(policy="mpc", sampling="per-cluster", **{f"{name}_deg": 70.0}))
+    assert kwargs == {"sampling": "per-cluster", f"{name}_rad": math.radians(70.0)}
     from baselines import MCMCMPC
 
-    assert MCMCMPC(**kwargs).settings.recovery_angle_rad == math.radians(70.0)
+    assert getattr(MCMCMPC(**kwargs).settings, f"{name}_rad") == math.radians(70.0)
     for bad in ("90", "0", "-5", "nan", "inf"):
-        assert main(["fly", "--policy", "mpc", "--recovery-angle-deg", bad]) == 2, bad
-        assert "--recovery-angle-deg" in capsys.readouterr().err, bad
-    assert main(["fly", "--policy", "nf", "--recovery-angle-deg", "70"]) == 2
-    assert "--recovery-angle-deg applies to --policy mpc only" in capsys.readouterr().err
+        assert main(["fly", "--policy", "mpc", option, bad]) == 2, bad
+        assert option in capsys.readouterr().err, bad
+    assert main(["fly", "--policy", "nf", option, "70"]) == 2
+    assert f"{option} applies to --policy mpc only" in capsys.readouterr().err
 
 
 def test_ray_backend_on_a_local_cluster():

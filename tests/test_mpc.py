@@ -237,6 +237,54 @@ def test_homing_chain_starts_aimed_home_and_its_density_matches_its_draws():
     np.testing.assert_array_equal(np.isclose(expected_1, both), np.abs(relative_1) <= s.recovery_angle_rad)
 
 
+def test_approach_angle_widens_the_turn_within_the_approach_radius_only():
+    """``approach_angle_rad``: an aircraft that has missed home, 40 nm past it, turns up to
+    80° (its chain start and its share around the heading); one 300 nm from home with home
+    behind it keeps 60°, and its draws are the same bits as without the setting."""
+    scenario = Scenario(
+        name="missed-near-and-far",
+        start_xy=[[40.0, 0.0], [0.0, -150.0], [200.0, 120.0]],
+        start_heading=[0.0, math.pi / 2, 0.0],
+        dest_xy=[[0.0, 0.0], [0.0, 150.0], [-100.0, 120.0]],
+        dest_heading=[math.pi, math.pi / 2, math.pi],
+    )
+    s = MPCSettings()
+    draws = {}
+    for approach in (None, math.radians(80.0)):
+        policy = MCMCMPC(extractions=20_000, approach_angle_rad=approach)
+        policy.reset(scenario, SimConfig(), seed=0)
+        view = Simulation(scenario).view()
+        proposals, log_g = policy._propose(view)
+        offset = proposals - view.positions[None]
+        relative = (np.arctan2(offset[..., 1], offset[..., 0]) - view.headings + math.pi) % (2 * math.pi) - math.pi
+        z = (np.hypot(offset[..., 0], offset[..., 1]) - s.distance_mean_nm) / s.distance_std_nm
+        draws[approach] = proposals, relative, log_g + 0.5 * (z**2).sum(axis=1)  # the angles' log density
+    proposals, relative, angle_terms = draws[math.radians(80.0)]
+    old_proposals, old_relative, old_angle_terms = draws[None]
+    # Home lies straight behind aircraft 0 and 2: candidate 0 turns them as far as allowed.
+    assert abs(abs(relative[0, 0]) - math.radians(80.0)) < 1e-9
+    assert abs(abs(relative[0, 2]) - s.recovery_angle_rad) < 1e-9
+    # Around the heading the draws reach 80° near home; the line home's ±90° lies behind.
+    ahead_0 = np.abs(relative[1:, 0]) < math.pi / 2
+    assert np.abs(relative[1:, 0][ahead_0]).max() <= math.radians(80.0) + 1e-12
+    assert (np.abs(relative[1:, 0]) > math.radians(70.0)).mean() > 0.02
+    assert abs(ahead_0.mean() - s.recovery_fraction) < 0.015
+    # Far from home nothing changed: aircraft 1 and 2 drew the same waypoints.
+    assert np.array_equal(proposals[:, 1:], old_proposals[:, 1:])
+    assert not np.array_equal(proposals[:, 0], old_proposals[:, 0])
+    # The chain's density is the one drawn from: f / (2 · 80°) ahead of aircraft 0, where it
+    # was f / (2 · 60°); the other aircraft's terms cancel.
+    def aircraft_0_term(ahead: np.ndarray, turn_rad: float) -> np.ndarray:
+        return np.where(ahead, math.log(s.recovery_fraction / (2 * turn_rad)), math.log((1 - s.recovery_fraction) / math.pi))
+
+    old_ahead_0 = np.abs(old_relative[1:, 0]) < math.pi / 2
+    np.testing.assert_allclose(angle_terms[1:] - old_angle_terms[1:],
+                               aircraft_0_term(ahead_0, math.radians(80.0))
+                               - aircraft_0_term(old_ahead_0, s.recovery_angle_rad), atol=1e-9)
+    with pytest.raises(ValueError, match="approach_angle_rad"):
+        MCMCMPC(approach_angle_rad=math.pi / 2)
+
+
 @pytest.mark.parametrize(
     "kwargs, field",
     [
@@ -248,6 +296,8 @@ def test_homing_chain_starts_aimed_home_and_its_density_matches_its_draws():
         ({"proposal": "uniform"}, "proposal"),
         ({"recovery_fraction": 1.5}, "recovery_fraction"),
         ({"recovery_angle_rad": 2.0}, "recovery_angle_rad"),
+        ({"approach_angle_rad": 0.0}, "approach_angle_rad"),
+        ({"approach_angle_rad": True}, "approach_angle_rad"),
         ({"search_rounds": -1}, "search_rounds"),
         ({"first_decision_margin_kt": 60.0}, "first_decision_margin_kt"),
     ],
