@@ -186,13 +186,14 @@ without them):
   stream a slot's next flight starts unheld.
 * Turning near home (``approach_angle_rad``). A recovery turn of at most
   ``recovery_angle_rad`` (60°) a 5-minute period circles about 35 nm out, at 454 kt: an
-  aircraft that passes beside its destination badly aligned can orbit it for most of an
-  hour, wider than the 5-nm arrival radius, each circle costing more within the horizon
-  than the one before it saved. With ``approach_angle_rad`` set, an aircraft within
-  ``shield.APPROACH_RADIUS_NM`` (60 nm) of its destination turns up to that angle
-  instead (its heading share of the proposal, its start direction, the progress rule's
-  recovery waypoint); elsewhere nothing changes, so a crowd far from home is searched as
-  before. The candidates stay checked against the envelope like any other.
+  aircraft pushed past its destination (most often by a conflict where its approach
+  would go) can orbit it for most of an hour outside the 5-nm arrival radius, because
+  the horizon's shifted waypoints cannot represent a go-around. With
+  ``approach_angle_rad`` set, an aircraft within ``shield.APPROACH_RADIUS_NM`` (60 nm) of
+  its destination turns up to that angle instead (its heading share of the proposal, its
+  start direction, the progress rule's recovery waypoint); elsewhere nothing changes, so
+  a crowd far from home is searched as before. The candidates stay checked against the
+  envelope like any other. A wider turn shrinks the circle; it does not end the orbit.
 
 Prediction wind and fallback
 ----------------------------
