@@ -50,18 +50,17 @@ from typing import Callable
 
 import numpy as np
 
+_PER_CLUSTER = {"sampling": "per-cluster", "progress_fraction": 0.5, "progress_periods": 6}
 #: The settings compared, by name: keyword arguments of ``baselines.MCMCMPC``.
 SETTINGS = {
     "joint": {},
     "dense": {"sampling": "clusters", "progress_fraction": 0.5, "progress_periods": 6},
-    "per-cluster": {"sampling": "per-cluster", "progress_fraction": 0.5, "progress_periods": 6},
+    "per-cluster": _PER_CLUSTER,
     # The same, with the chain's start and the heading-relative proposals turning up to 70°
     # instead of 60° a period: near home, 60° a period circles ~35 nm out (docs/mpc.md).
-    "per-cluster-70": {"sampling": "per-cluster", "progress_fraction": 0.5, "progress_periods": 6,
-                       "recovery_angle_rad": math.radians(70.0)},
+    "per-cluster-70": {**_PER_CLUSTER, "recovery_angle_rad": math.radians(70.0)},
     # The same turning up to 80° only within 60 nm of home, where the orbits are.
-    "per-cluster-approach-80": {"sampling": "per-cluster", "progress_fraction": 0.5, "progress_periods": 6,
-                                "approach_angle_rad": math.radians(80.0)},
+    "per-cluster-approach-80": {**_PER_CLUSTER, "approach_angle_rad": math.radians(80.0)},
 }
 #: What ``--settings`` flies when left out (the tables written before "per-cluster-70").
 DEFAULT_SETTINGS = ("joint", "dense", "per-cluster")
