@@ -12,8 +12,10 @@ Every environment takes the same keyword arguments, checked here (``EnvConfig``)
     max_aircraft        aircraft slots (default: the scenario's number); a scenario with
                         fewer aircraft is padded and masked.
     n_neighbours        K nearest neighbours in each observation (default 4).
-    max_episode_minutes time limit, min (default 180); truncation after
-                        ceil(limit / 5 min) decisions.
+    max_episode_minutes time limit, min (default None: not given, 180 min for an
+                        encounter, the stream's length for a traffic stream);
+                        truncation after ceil(limit / 5 min) decisions. A value given
+                        is always honoured, 180 included.
     max_cycles          decision periods (5 min each) before truncation, PettingZoo's
                         name for an episode's length (default None: from
                         max_episode_minutes). Give one of the two, not both.
@@ -65,13 +67,18 @@ class EnvConfig:
     render_mode: str | None = None
     max_aircraft: int | None = None
     n_neighbours: int = 4
-    max_episode_minutes: float = MAX_EPISODE_MINUTES
+    #: The time limit, min: None (not given) becomes ``MAX_EPISODE_MINUTES`` at
+    #: construction, so that it is always a number afterwards; ``time_limit_given`` keeps
+    #: whether a limit was given (a stream lasts its length unless one was).
+    max_episode_minutes: float | None = None
     max_cycles: int | None = None
     expose_wind: bool = False
     action_mapping: ActionMapping = field(default_factory=ActionMapping)
     reward_weights: RewardWeights = field(default_factory=RewardWeights)
     config: SimConfig = field(default_factory=SimConfig)
     render_size_px: int = 512
+    #: Whether ``max_episode_minutes`` or ``max_cycles`` was given (not None).
+    time_limit_given: bool = field(init=False, default=False)
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any], where: str) -> "EnvConfig":
@@ -114,6 +121,9 @@ class EnvConfig:
             raise ValueError(f"max_aircraft = {self.max_aircraft!r}: must be an integer >= 1 (or None)")
         if isinstance(self.n_neighbours, bool) or not isinstance(self.n_neighbours, (int, np.integer)) or self.n_neighbours < 0:
             raise ValueError(f"n_neighbours = {self.n_neighbours!r}: must be an integer >= 0")
+        object.__setattr__(self, "time_limit_given", self.max_cycles is not None or self.max_episode_minutes is not None)
+        if self.max_episode_minutes is None:
+            object.__setattr__(self, "max_episode_minutes", MAX_EPISODE_MINUTES)
         minutes = self.max_episode_minutes
         if isinstance(minutes, bool) or not isinstance(minutes, (int, float)) or not (math.isfinite(minutes) and minutes > 0):
             raise ValueError(f"max_episode_minutes = {minutes!r}: must be a finite number > 0")

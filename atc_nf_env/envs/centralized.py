@@ -567,13 +567,13 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
     Terminated when every aircraft has arrived (within Δ =
     ``SimConfig.arrival_tolerance_nm`` of its destination, checked at every integration
     step) or left the workspace. Truncated after ``max_cycles`` decisions, or
-    ceil(``max_episode_minutes`` / 5) (default 180 min: 36 steps). Stepping after the end raises ValueError
+    ceil(``max_episode_minutes`` / 5) (default None: 180 min, 36 steps). Stepping after the end raises ValueError
     (call ``reset``).
 
     ## Arguments
 
     ``gym.make("atc_nf_env/Encounter-v0", scenario="converging-4", wind_sigma=5.17,
-    render_mode=None, max_aircraft=None, n_neighbours=4, max_episode_minutes=180,
+    render_mode=None, max_aircraft=None, n_neighbours=4, max_episode_minutes=None,
     max_cycles=None, expose_wind=False, action_mapping=None, reward_weights=None,
     config=None, render_size_px=512)``; see ``atc_nf_env.envs`` for each. Unknown
     arguments raise TypeError listing the allowed ones. ``gym.make_vec(..., num_envs=B)`` builds the

@@ -79,7 +79,7 @@ class ATCParallelEnv(ParallelEnv):
     An agent terminates when it arrives (within Δ = ``SimConfig.arrival_tolerance_nm`` of
     its destination, checked at every integration step) or leaves the workspace, and is
     then removed from ``agents``. Every agent of the step is truncated after
-    ``max_cycles`` decisions, or ceil(``max_episode_minutes`` / 5) (default 180 min: 36
+    ``max_cycles`` decisions, or ceil(``max_episode_minutes`` / 5) (default None: 180 min, 36
     steps, room for the 6-aircraft encounter's ~70-90 min flights); one that arrives or
     leaves on that very step is terminated and truncated, so the last step never mixes
     agents only terminated with agents only truncated (RLlib's AEC wrapper ends an
@@ -91,7 +91,7 @@ class ATCParallelEnv(ParallelEnv):
     ## Arguments
 
     ``atc_nf_env.parallel_env(scenario="converging-4", wind_sigma=5.17, render_mode=None,
-    max_aircraft=None, n_neighbours=4, max_episode_minutes=180, max_cycles=None,
+    max_aircraft=None, n_neighbours=4, max_episode_minutes=None, max_cycles=None,
     expose_wind=False, action_mapping=None, reward_weights=None, config=None,
     render_size_px=512)``: see ``atc_nf_env.envs``. Unknown arguments raise TypeError
     listing the allowed ones.

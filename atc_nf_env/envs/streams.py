@@ -8,8 +8,8 @@ common ones (``atc_nf_env.envs.EnvConfig``), with these differences:
   stream's ``max_airborne``, ``scenarios.default_max_airborne``); an entry waits while
   every slot is taken.
 - The episode ends at the stream's length (``stream-60``: 120 min; ``stream-60-90min``:
-  90 min), or at ``max_episode_minutes`` / ``max_cycles`` if one is given and shorter:
-  every aircraft still airborne is then truncated.
+  90 min), or at ``max_episode_minutes`` / ``max_cycles`` if one is given (not None;
+  any value, 180 included) and shorter: every aircraft still airborne is then truncated.
 - ``render_mode`` must be None (a stream is not rendered yet).
 
 PettingZoo: the agents are the flights, ``flight_0`` ... ``flight_{F-1}``, in the order
@@ -43,7 +43,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from atc_nf_env.envs import MAX_EPISODE_MINUTES, EnvConfig, draw_episode_seed, episode_wind
+from atc_nf_env.envs import EnvConfig, draw_episode_seed, episode_wind
 from atc_nf_env.envs.actions import waypoints_for_state
 from atc_nf_env.envs.observations import ObservationSpec
 from atc_nf_env.envs.rewards import RewardWeights
@@ -80,10 +80,9 @@ class StreamWorld:
         else:
             self.max_flights = max_stream_flights(template.rate_per_hour, template.duration_s / 60.0)
         self.obs_spec = ObservationSpec.for_config(cfg.config, cfg.n_neighbours, cfg.expose_wind)
-        # The stream's length, unless a time limit was given (the encounters' default of
-        # 180 min is not one: a 300-min stream lasts 300 min).
-        given = cfg.max_cycles is not None or cfg.max_episode_minutes != MAX_EPISODE_MINUTES
-        limit_s = cfg.max_decisions * DECISION_PERIOD_S if given else template.duration_s
+        # The stream's length, unless a time limit was given (an explicit 180 min too; the
+        # encounters' default applies only to encounters).
+        limit_s = cfg.max_decisions * DECISION_PERIOD_S if cfg.time_limit_given else template.duration_s
         self.limit_s = min(template.duration_s, limit_s)
         self.weights: RewardWeights = cfg.reward_weights
         self.sim: StreamSimulation | None = None
