@@ -6,14 +6,18 @@ Aircraft keep the same colours here and in the animations (``rendering.AIRCRAFT_
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from atc_nf_env.config import SimConfig
 from atc_nf_env.episode import EpisodeResult
-from atc_nf_env.kernel import R_AIRSPEED, R_FLEW, R_X, R_Y
+from atc_nf_env.kernel import R_AIRSPEED, R_AIRSPEED_MAX, R_AIRSPEED_MIN, R_FLEW, R_X, R_Y
 from atc_nf_env.rendering import AIRCRAFT_COLORS
 from atc_nf_env.units import AIRSPEED_MAX_KT, AIRSPEED_MIN_KT, AIRSPEED_NOMINAL_KT, DECISION_PERIOD_S
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 #: Caption of an airspeed figure whose policy moves the waypoints every period.
 SAWTOOTH_NOTE = (
@@ -122,13 +126,18 @@ def _moves_waypoints(result: EpisodeResult) -> bool:
     return len(waypoints) > 1 and bool(np.any(np.abs(np.diff(waypoints, axis=0)) > 1e-6))
 
 
-def plot_airspeed(result: EpisodeResult, path: str | Path, title: str | None = None, *,
-                  policy: str | None = None, wind_sigma_mps: float | None = None,
-                  caption: str | None = None) -> None:
-    """Airspeed of every aircraft over time, with the envelope [366, 540] kt and, when the
-    data reach it, the ±cap guard of the law. The axis spans every value flown (nothing is
-    clipped). ``caption`` (default: the sawtooth note when the policy moved the waypoints)
-    is printed under the axes."""
+#: An aircraft's lowest or highest airspeed reached within a step is marked where it lies
+#: more than this beyond its line (kt): the band alone can be too thin to see.
+EXTREME_MARK_KT: float = 10.0
+
+
+def airspeed_figure(result: EpisodeResult, title: str | None = None, *, policy: str | None = None,
+                    wind_sigma_mps: float | None = None, caption: str | None = None) -> Figure:
+    """The airspeed figure (``plot_airspeed``) as an open matplotlib ``Figure``; the
+    caller saves and closes it. Each aircraft's line, band and markers carry the gid
+    ``"aircraft i"``."""
+    from atc_nf_env.tables import airspeed_range_kt
+
     plt = _pyplot()
     records = result.records
     if records.shape[0] == 0:
@@ -137,22 +146,46 @@ def plot_airspeed(result: EpisodeResult, path: str | Path, title: str | None = N
     if caption is None and _moves_waypoints(result):
         caption = SAWTOOTH_NOTE.format(period=DECISION_PERIOD_S / 60.0)
     fig, ax = plt.subplots(figsize=(8, 4.6 if caption else 4.2))
+    lowest, highest = airspeed_range_kt(records)
+    beyond_the_line = False
     for i in range(records.shape[1]):
         flew = records[:, i, R_FLEW] > 0
-        ax.plot(minutes[flew], records[flew, i, R_AIRSPEED], lw=1.2, color=aircraft_color(i),
-                label=None if result.metrics.stream else f"aircraft {i}")  # a stream's slots: no legend each
+        if not flew.any():
+            continue
+        color, gid, t = aircraft_color(i), f"aircraft {i}", minutes[flew]
+        line = records[flew, i, R_AIRSPEED]
+        ax.plot(t, line, lw=1.2, color=color, gid=gid,
+                label=None if result.metrics.stream else gid)  # a stream's slots: no legend each
+        # The band's edges are drawn so that a one-step excursion (a sub-step spike) shows.
+        ax.fill_between(t, records[flew, i, R_AIRSPEED_MIN], records[flew, i, R_AIRSPEED_MAX], color=color,
+                        alpha=0.3, lw=0.5, gid=gid)
+        for extreme, drawn, marker in ((lowest[i], line.min(), "v"), (highest[i], line.max(), "^")):
+            if abs(extreme - drawn) > EXTREME_MARK_KT:  # reached within a step only: marked where
+                beyond_the_line = True
+                at = t[np.flatnonzero(records[flew, i, R_AIRSPEED_MIN if marker == "v" else R_AIRSPEED_MAX]
+                                      == extreme)[0]]
+                ax.plot([at], [extreme], marker, color=color, ms=5, mec="k", mew=0.5, gid=gid, zorder=4)
+    if beyond_the_line:
+        ax.fill_between([], [], [], color="0.5", alpha=0.3, label="range within a step (sub-steps)")
+        ax.plot([], [], "v", color="0.5", mec="k", mew=0.5, ms=5, label="extreme reached within a step")
     ax.axhline(AIRSPEED_MIN_KT, color="k", ls="--", lw=1)
     ax.axhline(AIRSPEED_MAX_KT, color="k", ls="--", lw=1,
                label=f"envelope {AIRSPEED_MIN_KT:g}–{AIRSPEED_MAX_KT:g} kt")
     ax.axhline(AIRSPEED_NOMINAL_KT, color="0.45", ls="-.", lw=1, label=f"nominal {AIRSPEED_NOMINAL_KT:g} kt")
-    flown = records[..., R_AIRSPEED][records[..., R_FLEW] > 0]
-    low = min(AIRSPEED_MIN_KT - 60.0, float(flown.min())) if flown.size else AIRSPEED_MIN_KT - 60.0
-    high = max(AIRSPEED_MAX_KT + 60.0, float(flown.max())) if flown.size else AIRSPEED_MAX_KT + 60.0
+    flown = np.isfinite(lowest)
+    low = min(AIRSPEED_MIN_KT - 60.0, float(lowest[flown].min(initial=np.inf)))
+    high = max(AIRSPEED_MAX_KT + 60.0, float(highest[flown].max(initial=-np.inf)))
     cap = SimConfig().airspeed_cap_kt
-    if flown.size and float(np.abs(flown).max()) >= cap:
+    if max(-low, high) >= cap:
         for sign in (1, -1):
             ax.axhline(sign * cap, color="r", ls=":", lw=1, label=f"±{cap:g} kt guard (law saturated)" if sign > 0
                        else None)
+    m = result.metrics
+    if flown.any() and m.airspeed_min_kt is not None and (m.airspeed_min_kt < lowest[flown].min()
+                                                          or m.airspeed_max_kt > highest[flown].max()):
+        # A recording sparser than every step: the run's range lies partly between records.
+        ax.text(0.01, 0.02, f"between the records the airspeed reached {m.airspeed_min_kt:.0f}–"
+                f"{m.airspeed_max_kt:.0f} kt (not drawn)", transform=ax.transAxes, fontsize=7.5)
     margin = 0.04 * (high - low)
     ax.set_ylim(low - margin, high + margin)
     ax.set_xlabel("time (min)")
@@ -165,8 +198,27 @@ def plot_airspeed(result: EpisodeResult, path: str | Path, title: str | None = N
         fig.tight_layout(rect=(0, 0.09, 1, 1))
     else:
         fig.tight_layout()
+    return fig
+
+
+def plot_airspeed(result: EpisodeResult, path: str | Path, title: str | None = None, *,
+                  policy: str | None = None, wind_sigma_mps: float | None = None,
+                  caption: str | None = None) -> None:
+    """Airspeed of every aircraft over time (kt against minutes) into ``path``: a line
+    through the airspeed at the end of each recorded integration step, a band around it
+    from the lowest to the highest airspeed within that step (a step refined at the law's
+    singularity, kernel guard 8, can reach far beyond its ends), and a marker where an
+    aircraft's extreme lies within a step only (more than ``EXTREME_MARK_KT`` beyond the
+    line); the envelope [366, 540] kt and, when the
+    data reach it, the ±cap guard of the law. The axis spans every value drawn, the
+    bands' included: from a recording of every step (``atc-nf fly``) each aircraft's
+    extremes are those of the ``fly`` table. A sparser recording leaves the steps between
+    records undrawn; when the run's range reaches beyond the records a note under the
+    lines says so. ``caption`` (default: the sawtooth note when the policy moved the
+    waypoints) is printed under the axes."""
+    fig = airspeed_figure(result, title, policy=policy, wind_sigma_mps=wind_sigma_mps, caption=caption)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _pyplot().close(fig)
 
 
 def write_episode_plots(result: EpisodeResult, directory: str | Path, prefix: str, *,

@@ -49,32 +49,60 @@ def duration(seconds: float) -> str:
     return f"{1e6 * seconds:.0f} µs"
 
 
+#: Most pair distances ``closest_approach_nm`` holds at once: a handful of arrays of this
+#: many 8-byte values (tens of MB) whatever the number of aircraft and of records.
+PAIR_BLOCK_ELEMENTS: int = 1 << 20
+
+
+def closest_approach_nm(records: np.ndarray) -> np.ndarray:
+    """Per aircraft, the closest distance (N,) nm to any other aircraft at the records
+    (R, N, N_RECORD) both flew; NaN where no other aircraft flew beside it.
+
+    The pairs are taken a block of records and of aircraft at a time, at most
+    ``PAIR_BLOCK_ELEMENTS`` distances at once: memory O(N) per record, whatever R and N
+    (time O(R·N²)); every distance is the one an all-pairs array would hold, bit for bit."""
+    n_records, n = records.shape[:2]
+    closest = np.full(n, np.inf)
+    flew = records[:, :, R_FLEW] > 0
+    x, y = records[:, :, R_X], records[:, :, R_Y]
+    rows = max(1, min(n, PAIR_BLOCK_ELEMENTS // max(n, 1)))  # aircraft per block
+    steps = max(1, PAIR_BLOCK_ELEMENTS // (rows * max(n, 1)))  # records per block
+    for t0 in range(0, n_records, steps):
+        t = slice(t0, t0 + steps)
+        for i0 in range(0, n, rows):
+            i = slice(i0, min(i0 + rows, n))
+            distance = np.hypot(x[t, i, None] - x[t, None, :], y[t, i, None] - y[t, None, :])
+            both = flew[t, i, None] & flew[t, None, :]
+            own = np.arange(i.start, i.stop)
+            both[:, own - i0, own] = False  # an aircraft is not its own neighbour
+            nearest = np.where(both, distance, np.inf).min(axis=(0, 2), initial=np.inf)
+            closest[i] = np.minimum(closest[i], nearest)
+    return np.where(np.isfinite(closest), closest, np.nan)
+
+
+def airspeed_range_kt(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per aircraft, the lowest and highest airspeed (N,) kt over the records (R, N,
+    N_RECORD) it flew, each record's sub-steps included (``R_AIRSPEED_MIN``,
+    ``R_AIRSPEED_MAX``); NaN where it flew none."""
+    flew = records[:, :, R_FLEW] > 0
+    low = np.where(flew, records[:, :, R_AIRSPEED_MIN], np.inf).min(axis=0, initial=np.inf)
+    high = np.where(flew, records[:, :, R_AIRSPEED_MAX], -np.inf).max(axis=0, initial=-np.inf)
+    flown = flew.any(axis=0)
+    return np.where(flown, low, np.nan), np.where(flown, high, np.nan)
+
+
 def per_aircraft(result: EpisodeResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per aircraft, from a recording of every integration step: the closest distance to
     any other aircraft (N,) nm at the ends of the steps both flew (NaN where no other
-    aircraft flew beside it), and the lowest and highest airspeed (N,) kt over the steps it
-    flew (NaN where none). The kernel's run-wide minimum separation also looks between a
+    aircraft flew beside it, ``closest_approach_nm``), and the lowest and highest airspeed
+    (N,) kt over the steps it flew, sub-steps included (NaN where none,
+    ``airspeed_range_kt``). The kernel's run-wide minimum separation also looks between a
     refined step's sub-steps, so it can be a little lower than the least of these."""
     records = result.records
-    n = records.shape[1] if records.ndim == 3 else result.metrics.n_aircraft
-    closest = np.full(n, np.nan)
-    low = np.full(n, np.nan)
-    high = np.full(n, np.nan)
     if records.ndim != 3 or records.shape[0] == 0:
-        return closest, low, high
-    flew = records[:, :, R_FLEW] > 0
-    xy = records[:, :, [R_X, R_Y]]
-    distance = np.hypot(*(xy[:, :, None, :] - xy[:, None, :, :]).transpose(3, 0, 1, 2))
-    both = flew[:, :, None] & flew[:, None, :]
-    both &= ~np.eye(n, dtype=bool)[None]
-    masked = np.where(both, distance, np.inf).min(axis=(0, 2))
-    closest = np.where(np.isfinite(masked), masked, np.nan)
-    for i in range(n):
-        steps = flew[:, i]
-        if steps.any():
-            low[i] = records[steps, i, R_AIRSPEED_MIN].min()
-            high[i] = records[steps, i, R_AIRSPEED_MAX].max()
-    return closest, low, high
+        nothing = np.full(records.shape[1] if records.ndim == 3 else result.metrics.n_aircraft, np.nan)
+        return nothing, nothing.copy(), nothing.copy()
+    return (closest_approach_nm(records), *airspeed_range_kt(records))
 
 
 def _policy_line(info: dict[str, Any]) -> str | None:
@@ -261,4 +289,5 @@ def evaluate_table(summary: dict[str, Any], records: list[dict[str, Any]], study
     return "\n".join([head, *("  " + line for line in aligned(rows, [False, False]))])
 
 
-__all__ = ["aligned", "duration", "evaluate_table", "fly_summary", "fly_table", "per_aircraft", "run_is_safe"]
+__all__ = ["airspeed_range_kt", "aligned", "closest_approach_nm", "duration", "evaluate_table", "fly_summary",
+           "fly_table", "per_aircraft", "run_is_safe"]
