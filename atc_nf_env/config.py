@@ -47,7 +47,7 @@ class SimConfig:
         airspeed_cap_kt: saturation of the commanded airspeed, kt. A guard: the 1/P_i
             term of (5a) is unbounded as P_i → 0; the cap keeps positions finite and,
             being far outside the envelope, changes no feasibility verdict.
-        p_floor: floor on |P_i| (units of 1/L) in the 1/P_i term of (5a) (guard).
+        p_floor: floor on ``|P_i|`` (units of 1/L) in the 1/P_i term of (5a) (guard).
         grad_floor: below this ‖∇Φ_i‖ (units of 1/L) θ_nh is taken as θ_d (guard; the
             paper's rule at q_i = q_d, extended to where the gradient has no direction).
         dphi_dt_gain: weight of ∂Φ_i/∂t in (5a) (1: the paper's law).

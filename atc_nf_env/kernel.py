@@ -1,5 +1,7 @@
 """The one batched simulator kernel: B worlds of N aircraft under the NF control law.
 
+Its entry point::
+
     advance(state[B, N], waypoints[B, N], wind[B], seconds) -> trace
 
 Every part of the project that moves aircraft calls this: the environments (B = 1 or
@@ -27,7 +29,7 @@ bits (``tests/test_neighbour_grid.py``). The scaling with N is in BENCHMARKS.md
 (``bench/bench_kernel.py --scaling``).
 
 Physics per aircraft i, integrated at ``dt_s`` with the second-order Adams-Bashforth
-scheme (explicit Euler on the first step under a new waypoint) (paper (1), (5)):
+scheme (explicit Euler on the first step under a new waypoint) (paper (1), (5))::
 
     ẋ_i = u_i cos θ_i + w_x,   ẏ_i = u_i sin θ_i + w_y,   θ̇_i = ω_i
     u_i = −sgn(P_i) F_i − (∂Φ_i/∂t + |∂Φ_i/∂t|) / (2 P_i)
@@ -44,9 +46,9 @@ Guards against the law's singularities and the step's error (each keeps a value 
 that the law leaves undefined, or a step accurate; none acts in an ordinary flight but
 guards 8 and 10, which only fly some of its steps finer):
 
-1. |P_i| is floored at ``p_floor`` in the 1/P_i term: P_i = 0 when the heading is
+1. ``|P_i|`` is floored at ``p_floor`` in the 1/P_i term: P_i = 0 when the heading is
    normal to the gradient, e.g. just after a waypoint switch.
-2. The commanded airspeed is saturated at ±``airspeed_cap_kt``: as P_i → 0 the 1/P_i
+2. The commanded airspeed is saturated at ± ``airspeed_cap_kt``: as P_i → 0 the 1/P_i
    term grows without bound. The cap is far outside the envelope, so a saturated
    step is still counted as a violation and no feasibility verdict changes.
    A step in which any command saturates is flown in sub-steps (guard 8).
@@ -63,11 +65,11 @@ guards 8 and 10, which only fly some of its steps finer):
 7. An aircraft whose disk reaches the workspace boundary (β0 ≤ 0) has left and is no
    longer simulated, so Φ is never evaluated where it is undefined.
 8. Sub-steps at the singularity. Near a critical point of Φ_i with neighbours closing
-   in (∂Φ_i/∂t > 0, |P_i| → 0), the 1/P_i term saturates and its sign follows the sign
+   in (∂Φ_i/∂t > 0, ``|P_i|`` → 0), the 1/P_i term saturates and its sign follows the sign
    of P_i: u_i = −u_cap sgn(P_i). A step of dt overshoots P_i = 0 by up to u_cap · dt
    (2 nm at 5 s) and the sign then alternates step by step, so the flight depended on
    dt. A step in which any command saturates, in which the right-hand rule acts (guard
-   9), or in which any aircraft's 1/P_i term, (∂Φ_i/∂t)⁺ / |P_i|, exceeds
+   9), or in which any aircraft's 1/P_i term, ``(∂Φ_i/∂t)⁺ / |P_i|``, exceeds
    ``substep_from_kt`` (50 kt: the watch) at its start, or, among neighbours, at its end
    (guard 10), is therefore flown in ceil(dt / ``substep_s``) explicit-Euler sub-steps,
    each with fresh commands; the overshoot falls to u_cap · substep_s (0.04 nm at 0.1 s)
@@ -85,7 +87,7 @@ guards 8 and 10, which only fly some of its steps finer):
    neighbours' repulsion balances the pull of the destination: P_i = 0 at a critical
    point of Φ_i, while ∂Φ_i/∂t > 0. The law has no solution there (even solved
    implicitly in the u_j, the common airspeed u of the N aircraft obeys u (g − c) = F g,
-   g = |∇_iΦ_i| and c = Σ_j ∇_jΦ_i · J_j, which blows up as g → c, with no solution
+   g = ``|∇_iΦ_i|`` and c = Σ_j ∇_jΦ_i · J_j, which blows up as g → c, with no solution
    beyond): the N aircraft meet at a saddle of the joint flow, and which way each leaves
    its line is decided by rounding errors. A generic near-head-on pass reaches the same
    blow-up. A rule is needed there, not a finer step. We take the rules of the air (ICAO
@@ -109,23 +111,23 @@ guards 8 and 10, which only fly some of its steps finer):
    by up to about 0.3 nm on halving the step (BENCHMARKS.md, the saddle and
    "integration-convergence").
 10. Error control among neighbours. An integration step with two aircraft within the
-   sensing radius at its start or at its end is first tried whole: every aircraft is
-   moved as the step would move it, and the law's commands are taken there. If they ask
-   for refinement (guard 8) the step is flown in ceil(dt / ``substep_s``) sub-steps; else
-   its local position error is estimated from the ground velocities of the last step,
-   this one and the next (AB2's against the next order's: (5/12) dt |v₊ − 2v + v₋|; after
-   a switch or a refined step, Euler's: dt |v₊ − v| / 2), and where it exceeds
-   ``step_tolerance_nm`` (0.002 nm) the step is flown in as many Euler sub-steps as bring
-   it within (their error falls as 1 / their number), at most ceil(dt / ``substep_s``).
-   A step flown whole keeps its trial's commands for the next step (the trial moved every
-   aircraft by the step's own move, ``_move_aircraft``, so they are the same bits), unless an aircraft
-   arrived or left. Why: at 5 s, AB2 enters a pass late and coarse (the neighbour's
-   repulsion switches on within one step as it enters the sensing radius), and the NF
-   alone on random encounters missed the converged minimum separation by up to 2 nm;
-   with the control the figures at 5 s and at dt/8 agree within the goal of 0.2 nm on the
-   random encounters of the study. Steps with no pair in range at either end are
-   untouched: an ordinary step is one with no pair within the sensing radius before and
-   after its move (``_ordinary_run``, the lane step), so every path flies the same bits.
+    sensing radius at its start or at its end is first tried whole: every aircraft is
+    moved as the step would move it, and the law's commands are taken there. If they ask
+    for refinement (guard 8) the step is flown in ceil(dt / ``substep_s``) sub-steps; else
+    its local position error is estimated from the ground velocities of the last step,
+    this one and the next (AB2's against the next order's: ``(5/12) dt |v₊ − 2v + v₋|``; after
+    a switch or a refined step, Euler's: ``dt |v₊ − v| / 2``), and where it exceeds
+    ``step_tolerance_nm`` (0.002 nm) the step is flown in as many Euler sub-steps as bring
+    it within (their error falls as 1 / their number), at most ceil(dt / ``substep_s``).
+    A step flown whole keeps its trial's commands for the next step (the trial moved every
+    aircraft by the step's own move, ``_move_aircraft``, so they are the same bits), unless an aircraft
+    arrived or left. Why: at 5 s, AB2 enters a pass late and coarse (the neighbour's
+    repulsion switches on within one step as it enters the sensing radius), and the NF
+    alone on random encounters missed the converged minimum separation by up to 2 nm;
+    with the control the figures at 5 s and at dt/8 agree within the goal of 0.2 nm on the
+    random encounters of the study. Steps with no pair in range at either end are
+    untouched: an ordinary step is one with no pair within the sensing radius before and
+    after its move (``_ordinary_run``, the lane step), so every path flies the same bits.
 
 An aircraft that arrives (its path passes within Δ of its destination, checked on
 every integration step's segment) or leaves is frozen and stops being an obstacle.

@@ -1,5 +1,7 @@
 """The decentralized dipolar navigation function of the paper, equations (2)-(4).
 
+The navigation function of aircraft i::
+
     Φ_i = (γ_i + f_i) / ((γ_i + f_i)^k + H_i · G_i · β0_i)^(1/k)
 
 with, for aircraft i aimed at its current waypoint q_d with desired orientation θ_d:

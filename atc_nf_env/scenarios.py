@@ -239,7 +239,7 @@ def random_encounter(
 
     Each aircraft starts on the circle of ``radius_nm`` at a uniformly random angle a,
     heading for its destination on the same circle at angle a + π + δ, with δ uniform in
-    ±``max_deviation_deg``; starts and destinations are at least ``min_separation_nm``
+    ± ``max_deviation_deg``; starts and destinations are at least ``min_separation_nm``
     apart. Every seed gives a layout: layouts are drawn independently until one is so
     spread, and when ``RANDOM_DRAWS`` draws give none (crowded circles: random-18 needs
     more for a few seeds in ten) one is built spaced from the same seeded stream
@@ -321,8 +321,9 @@ class StreamScenario(Scenario):
     The world holds ``max_airborne`` aircraft slots (the kernel state's fixed size): an
     aircraft that has not entered, or has arrived, leaves its slot empty (ABSENT) and out
     of every interaction. ``n_aircraft`` is that slot count; ``n_flights`` the flights.
+    Its attributes beyond ``Scenario``'s are these.
 
-    Attributes (beyond ``Scenario``'s):
+    Attributes:
         entry_time_s: (M,) times the flights are due, s, non-decreasing, in [0, duration_s).
         duration_s: length of the episode, s.
         max_airborne: aircraft slots, >= 1.
@@ -441,7 +442,7 @@ def stream_scenario(
 
     Each flight enters at a uniformly random point of the sector's edge (a circle of
     ``sector_radius_nm`` around the workspace centre) and is bound for the point across
-    it, turned by δ uniform in ±``max_deviation_deg`` (as ``random_encounter``), heading
+    it, turned by δ uniform in ± ``max_deviation_deg`` (as ``random_encounter``), heading
     along the line between them. Its due time is the previous one's plus an exponential
     gap of mean 1/rate. ``max_airborne`` (default ``default_max_airborne``) bounds the
     aircraft airborne at once; at most ``max_stream_flights`` flights are scheduled.

@@ -21,7 +21,7 @@ Every T = 5 min the controller chooses one intermediate waypoint per aircraft:
    proposals do not depend on the chain's state, so simulating them first and running
    the chain afterwards is the sequential algorithm of Table I, identical in
    distribution. The target is π(Θ) ∝ C(Θ)^−J (J = ``cost_exponent``, 1 by default) and
-   the acceptance is the standard independence sampler's
+   the acceptance is the standard independence sampler's::
 
        ρ = min{1, (C_{k−1} / C̃)^J · g(Θ_{k−1}) / g(Θ̃)}.
 
@@ -30,8 +30,8 @@ Every T = 5 min the controller chooses one intermediate waypoint per aircraft:
 5. The candidate of lowest cost among the chain's states is applied (Table I's last
    step).
 
-What the default (``proposal="homing"``) changes, and why
--------------------------------------------------------
+## What the default (``proposal="homing"``) changes, and why
+
 Table I's sampler, proposal and cost stay available as ``proposal="paper"`` (CLI
 ``--proposal paper``). Flown as printed, they leave aircraft holding short of home and
 breach the envelope at fallbacks: ``atc-nf evaluate --policy mpc --proposal paper
@@ -62,7 +62,7 @@ is met by one change:
   NF answers with P_i > 0, i.e. a reverse airspeed u = −F, and every candidate is
   infeasible. The proposal is therefore a mixture per aircraft: with probability
   1 − f (``recovery_fraction`` f = 0.25) Table I's angle, with probability f an angle
-  uniform in ±``recovery_angle_rad`` (60°) around the current heading, which turns the
+  uniform in ± ``recovery_angle_rad`` (60°) around the current heading, which turns the
   aircraft back over a few periods. The mixture's density enters the MH ratio, so the
   chain still samples π ∝ C^−J. (The test suite flies an aircraft that starts facing
   away from home: Table I reverses it at −450 kt, "homing" turns it home inside the
@@ -93,19 +93,24 @@ Measured (wind σ = 5.17 m/s, K = 1000, ``atc-nf evaluate --policy mpc --scenari
 --runs R --workers 1 [--proposal paper]``, seeds 0..R−1). The "homing" rows are flown
 by the kernel with the saddle's sub-steps; the "paper" rows by the kernel before them:
 
-| scenario | proposal | runs | every aircraft home | LoS | runs with a step outside [366, 540] kt | fallbacks | mean flight (arrived) | airspeed range |
-|---|---|---:|---:|---:|---:|---:|---:|---:|
-| converging-4 | paper  | 60  | 54  | 0 | 0 | 0 | 75.5 min | 366.6 .. 520.2 kt |
-| converging-4 | homing | 300 | 300 | 0 | 0 | 0 | 67.2 min | 370.1 .. 536.0 kt |
-| converging-6 | paper  | 60  | 51  | 0 | 1 (seed 32) | 2 | 88.2 min | −471.3 .. 539.4 kt |
-| converging-6 | homing | 300 | 300 | 0 | 0 | 0 | 70.1 min | 370.2 .. 535.9 kt |
-| random-4     | homing | 78  | 78  | 0 | 0 | 0 | 64.2 min | 372.2 .. 535.3 kt |
-| random-6     | homing | 60  | 60  | 0 | 0 | 0 | 66.5 min | 370.1 .. 532.5 kt |
+============  ========  ====  ========  ===  ============  =========  =========  ==================
+scenario      proposal  runs  every     LoS  runs with a   fallbacks  mean       airspeed range
+                              aircraft       step outside             flight
+                              home           [366, 540]               (arrived)
+                                             kt
+============  ========  ====  ========  ===  ============  =========  =========  ==================
+converging-4  paper     60    54        0    0             0          75.5 min   366.6 .. 520.2 kt
+converging-4  homing    300   300       0    0             0          67.2 min   370.1 .. 536.0 kt
+converging-6  paper     60    51        0    1 (seed 32)   2          88.2 min   −471.3 .. 539.4 kt
+converging-6  homing    300   300       0    0             0          70.1 min   370.2 .. 535.9 kt
+random-4      homing    78    78        0    0             0          64.2 min   372.2 .. 535.3 kt
+random-6      homing    60    60        0    0             0          66.5 min   370.1 .. 532.5 kt
+============  ========  ====  ========  ===  ============  =========  =========  ==================
 
 No decision of the "homing" runs above needed a wider search round.
 
-Lazy search
------------
+## Lazy search
+
 The chain needs a candidate's cost only to decide whether to move to it, so by default
 (``search="lazy"``) a candidate is flown only as far as that decision needs. Its cost
 is bounded from below by what the rest of the horizon can still change: ground speed
@@ -133,8 +138,8 @@ flown (in practice, a round without a feasible candidate); ``search="exhaustive"
 all K over the whole horizon and reports it for every decision
 (``DecisionRecord.feasible_fraction`` is None otherwise).
 
-Dense traffic (opt-in)
-----------------------
+## Dense traffic (opt-in)
+
 Two settings for many aircraft, off by default (the defaults above fly bit for bit as
 without them):
 
@@ -195,8 +200,8 @@ without them):
   a crowd far from home is searched as before. The candidates stay checked against the
   envelope like any other. A wider turn shrinks the circle; it does not end the orbit.
 
-Prediction wind and fallback
-----------------------------
+## Prediction wind and fallback
+
 The controller never sees the true wind. Its prediction wind model is configurable:
 ``"none"`` (still air), ``"sampled"`` (each candidate predicted under its own wind drawn
 from N(0, σ²) per component) or ``"estimated"`` (a constant wind estimated from the
@@ -275,8 +280,8 @@ class MPCSettings:
       ``home_distance_nm`` (130 nm) out, turned at most ``recovery_angle_rad`` from its
       heading (Table I leaves the start free; "paper" starts from the first draw);
     - a mixture proposal: with probability ``recovery_fraction`` (0.25) an aircraft's
-      angle is uniform within ±``recovery_angle_rad`` (60°) of its heading instead of
-      within ±``angle_range_rad`` (90°) of the line to its destination;
+      angle is uniform within ± ``recovery_angle_rad`` (60°) of its heading instead of
+      within ± ``angle_range_rad`` (90°) of the line to its destination;
     - a cost term: each aircraft's time flown in the horizon, as distance at 454 kt, is
       added to (6)'s remaining distances;
     - envelope margins: the prediction holds the airspeed 4 kt inside [366, 540] kt

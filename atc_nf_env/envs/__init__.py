@@ -3,27 +3,31 @@ Gymnasium env (``atc_nf_env/Encounter-v0``) and its native vector env.
 
 Every environment takes the same keyword arguments, checked here (``EnvConfig``):
 
-    scenario            "converging-N", "random-N" (a new encounter every reset, drawn
-                        from the env's seed), a path to a .json file, a dict
-                        (``Scenario.to_dict()``'s format) or a Scenario. Default
-                        "converging-4".
-    wind_sigma          standard deviation of each wind component, m/s (default 5.17).
-    render_mode         None, "rgb_array" or "human".
-    max_aircraft        aircraft slots (default: the scenario's number); a scenario with
-                        fewer aircraft is padded and masked.
-    n_neighbours        K nearest neighbours in each observation (default 4).
-    max_episode_minutes time limit, min (default None: not given, 180 min for an
-                        encounter, the stream's length for a traffic stream);
-                        truncation after ceil(limit / 5 min) decisions. A value given
-                        is always honoured, 180 included.
-    max_cycles          decision periods (5 min each) before truncation, PettingZoo's
-                        name for an episode's length (default None: from
-                        max_episode_minutes). Give one of the two, not both.
-    expose_wind         put the true wind in observations, state and info (default False).
-    action_mapping      ActionMapping or dict (default 100 ± 40 nm, ±90°).
-    reward_weights      RewardWeights or dict (see ``atc_nf_env.envs.rewards``).
-    config              SimConfig: NF gains and integrator (the calibrated defaults).
-    render_size_px      side of the rendered square frame, pixels (default 512).
+===================  ==================================================================
+argument             meaning
+===================  ==================================================================
+scenario             "converging-N", "random-N" (a new encounter every reset, drawn
+                     from the env's seed), a path to a .json file, a dict
+                     (``Scenario.to_dict()``'s format) or a Scenario. Default
+                     "converging-4".
+wind_sigma           standard deviation of each wind component, m/s (default 5.17).
+render_mode          None, "rgb_array" or "human".
+max_aircraft         aircraft slots (default: the scenario's number); a scenario with
+                     fewer aircraft is padded and masked.
+n_neighbours         K nearest neighbours in each observation (default 4).
+max_episode_minutes  time limit, min (default None: not given, 180 min for an
+                     encounter, the stream's length for a traffic stream);
+                     truncation after ceil(limit / 5 min) decisions. A value given
+                     is always honoured, 180 included.
+max_cycles           decision periods (5 min each) before truncation, PettingZoo's
+                     name for an episode's length (default None: from
+                     max_episode_minutes). Give one of the two, not both.
+expose_wind          put the true wind in observations, state and info (default False).
+action_mapping       ActionMapping or dict (default 100 ± 40 nm, ±90°).
+reward_weights       RewardWeights or dict (see ``atc_nf_env.envs.rewards``).
+config               SimConfig: NF gains and integrator (the calibrated defaults).
+render_size_px       side of the rendered square frame, pixels (default 512).
+===================  ==================================================================
 
 Unknown keyword arguments raise TypeError (as Python does for a function), bad values
 ValueError; both name what is allowed.

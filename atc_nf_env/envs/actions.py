@@ -1,5 +1,5 @@
 """Actions of the environments: a normalized pair in [-1, 1]² per aircraft, mapped to
-an intermediate waypoint relative to the bearing to the aircraft's destination.
+an intermediate waypoint relative to the bearing to the aircraft's destination::
 
     distance = distance_nm + distance_span_nm · a[0]              (nm)
     angle    = bearing_to_destination + angle_span_deg · a[1]     (counter-clockwise)

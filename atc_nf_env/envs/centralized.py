@@ -621,6 +621,13 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
         self._viewer: Any = None
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start an episode: a given ``seed`` flies episode seed ``seed``; None draws the next
+        episode seed from the env's generator. ``options`` is not used.
+
+        Returns:
+            The observation, ``Box((M · D,), float32)``, and the info dict (Info in
+            the class docstring, with its neutral values).
+        """
         seed = None if seed is None else check_seed(seed)  # the project's one seed rule
         super().reset(seed=seed)
         episode_seed = seed if seed is not None else draw_episode_seed(self.np_random)
@@ -630,6 +637,18 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
         return self.world.observe().reshape(-1), self._info()
 
     def step(self, action: Any) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        """Fly one decision period (300 s) with ``action``: (M, 2) finite numbers, clipped to
+        [-1, 1]; rows of padding slots and of aircraft no longer flying are ignored.
+
+        Returns:
+            ``(observation, reward, terminated, truncated, info)``: the reward summed over the
+            aircraft; terminated once every aircraft has arrived or left; truncated at the
+            time limit (Episode End in the class docstring).
+
+        Raises:
+            ValueError: before ``reset``, after the episode's end, or for an action of
+                another shape or with a value that is not finite.
+        """
         world = self.world
         if not world.started:
             raise ValueError("atc_nf_env/Encounter-v0: step() before reset(); call reset() first")

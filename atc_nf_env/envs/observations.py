@@ -3,26 +3,30 @@
 Per aircraft i, in its ego frame (x forward along its heading, y to its left), with
 distances in units of ``DISTANCE_SCALE_NM`` = 100 nm:
 
-====  =====================  ===========================================================
- idx  name                   meaning
-====  =====================  ===========================================================
- 0    alive                  1 while flying, 0 once arrived or left (its final obs)
- 1    airspeed               (u − c) / h with c, h the envelope's centre and half-width
-                             (453, 87 kt): inside the envelope iff |value| <= 1
- 2    dest_distance          distance to go / 100 nm
- 3    dest_cos, 4 dest_sin   bearing to the destination relative to the heading
- 5    wp_forward, 6 wp_left  current waypoint relative to the aircraft / 100 nm
- 7    time                   elapsed time / the episode's time limit
- 8..  neighbour k = 0..K-1   5 values each, nearest first, only aircraft still flying:
-                             mask (1 = present), forward, left (relative position /
-                             100 nm), vel_forward, vel_left (relative air velocity /
-                             454 kt); absent neighbours are all zeros
- end  wind_forward, wind_left (only with ``expose_wind=True``) wind / 50 kt
-====  =====================  ===========================================================
+==========  ==================  ==========================================================
+index       name                meaning
+==========  ==================  ==========================================================
+0           alive               1 while flying, 0 once arrived or left (its final obs)
+1           airspeed            (u − c) / h with c, h the envelope's centre and
+                                half-width (453, 87 kt): inside the envelope iff
+                                ``|value| <= 1``
+2           dest_distance       distance to go / 100 nm
+3, 4        dest_cos, dest_sin  bearing to the destination relative to the heading
+5, 6        wp_forward,         current waypoint relative to the aircraft / 100 nm
+            wp_left
+7           time                elapsed time / the episode's time limit
+8 .. 7+5K   neighbours          5 values for each neighbour k = 0..K-1 (from 8 + 5 k),
+                                nearest first, only aircraft still flying: mask
+                                (1 = present), forward, left (relative position /
+                                100 nm), vel_forward, vel_left (relative air velocity /
+                                454 kt); absent neighbours are all zeros
+8+5K, 9+5K  wind_forward,       wind / 50 kt, only with ``expose_wind=True``
+            wind_left
+==========  ==================  ==========================================================
 
 The relative velocity of two aircraft is the same over the air and over the ground
 (the wind is uniform), so the neighbours' features reveal nothing of the wind. Every
-value is clipped to ±``OBS_LIMIT`` (never reached in the workspace: it only makes
+value is clipped to ± ``OBS_LIMIT`` (never reached in the workspace: it only makes
 the Box bounds finite).
 
 The global state (``state()`` of the PettingZoo env) is, per aircraft slot,

@@ -1,5 +1,7 @@
 """The per-aircraft reward of one decision period (T = 300 s) and its weights.
 
+Aircraft i's reward for the period from t to t + T::
+
     r_i = progress_per_100nm · (d_i(t) − d_i(t + T)) / 100 nm
           − envelope_violation · (steps outside the airspeed envelope / steps flown)
           − loss_of_separation · (number of other aircraft closer than 5 nm at some step)

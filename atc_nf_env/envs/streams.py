@@ -336,6 +336,13 @@ class StreamEnv(gym.Env):
         return info
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+        """Start an episode of the stream: a given ``seed`` flies episode seed ``seed``; None
+        draws the next episode seed from the env's generator. ``options`` is not used.
+
+        Returns:
+            The observation (``aircraft`` (M, D) float32, ``mask`` (M,): the slots airborne)
+            and the info dict (``slot_flight``, ``time_s``, ``episode_seed``).
+        """
         if seed is not None:
             check_seed(seed)
         super().reset(seed=seed)
@@ -344,6 +351,14 @@ class StreamEnv(gym.Env):
         return self._observation(), self._info()
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
+        """Fly one decision period (300 s) with ``action``: (M, 2) finite numbers, one row
+        per slot (rows of empty slots are ignored).
+
+        Returns:
+            ``(observation, reward, terminated, truncated, info)``: the reward summed over the
+            airborne aircraft; terminated is always False (a stream has no end state);
+            truncated at the episode's end, when ``info["stream"]`` holds the stream's metrics.
+        """
         if self.world.sim is None:
             raise RuntimeError("call reset() before step()")
         array = np.asarray(action, dtype=np.float64)
