@@ -517,12 +517,12 @@ class _OrderEnforcingWrapper(wrappers.OrderEnforcingWrapper):
 
 def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
     """The AEC form (``raw_env`` in PettingZoo's ``OrderEnforcingWrapper``); of a traffic
-    stream, PettingZoo's ``parallel_to_aec`` conversion of ``StreamParallelEnv``, which
-    handles agents that join."""
-    from atc_nf_env.envs.streams import StreamParallelEnv, is_stream
+    stream, ``StreamAECEnv`` (PettingZoo's ``parallel_to_aec`` conversion of
+    ``StreamParallelEnv``, which handles agents that join), in the same wrapper."""
+    from atc_nf_env.envs.streams import StreamAECEnv, is_stream
 
     if is_stream(kwargs.get("scenario")):
-        return wrappers.OrderEnforcingWrapper(parallel_to_aec_wrapper(StreamParallelEnv(**kwargs)))
+        return wrappers.OrderEnforcingWrapper(StreamAECEnv(**kwargs))
     return _OrderEnforcingWrapper(raw_env(**kwargs))
 
 

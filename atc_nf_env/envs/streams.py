@@ -16,9 +16,11 @@ PettingZoo: the agents are the flights, ``flight_0`` ... ``flight_{F-1}``, in th
 they are due; ``possible_agents`` holds the most flights a stream of that rate and length
 schedules (``scenarios.max_stream_flights``), fixed per env. ``agents`` are the flights
 airborne: a flight joins at the step after which it entered, and terminates when it
-arrives or leaves (never to return). Periods in which no aircraft is airborne are flown
+arrives or leaves (never to return); one that enters at the episode's last instant has
+no period left to fly and never joins. Periods in which no aircraft is airborne are flown
 inside ``reset``/``step`` (nothing moves but the clock), so ``agents`` is empty only at
-the end of the episode. Observations, actions and rewards per flight are the encounter
+the end of the episode, or from the reset on when no flight enters before the time limit
+(then ``step({})`` returns empty dicts, and the AEC form's ``agent_iter`` yields nothing). Observations, actions and rewards per flight are the encounter
 env's (``ATCParallelEnv``), the reward of a period counted from the flight's slot.
 
 Gymnasium: ``StreamEnv``'s observation is a dict of ``aircraft`` Box(M, D) (the encounter
@@ -42,6 +44,8 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
+from pettingzoo.utils import AgentSelector
+from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
 from atc_nf_env.envs import EnvConfig, draw_episode_seed, episode_wind
 from atc_nf_env.envs.actions import waypoints_for_state
@@ -252,6 +256,13 @@ class StreamParallelEnv(ParallelEnv):
             raise RuntimeError("call reset() before step()")
         if not isinstance(actions, dict):
             raise ValueError(f"actions must be a dict of agent -> action, got {type(actions).__name__}")
+        if not self.agents:  # the episode is over, or no flight entered in its window
+            if any(value is not None for value in actions.values()):
+                raise ValueError(
+                    "parallel_env: the episode is over (its time has passed, or no flight entered in it); "
+                    "call reset() before step()"
+                )
+            return {}, {}, {}, {}, {}
         live = self._live()
         unknown = sorted(set(actions) - set(live), key=str)
         if unknown:
@@ -278,15 +289,14 @@ class StreamParallelEnv(ParallelEnv):
         now = self._live()
         for agent, slot in now.items():
             if agent in live:
-                obs[agent] = self.world.obs[slot]  # after the skipped periods, if any
-                continue
-            obs[agent] = self.world.obs[slot]
+                obs[agent] = self.world.obs[slot]
             rewards[agent] = 0.0
             terminations[agent] = False
             truncations[agent] = truncated
             infos[agent] = self._info(slot)
-        self.agents = [a for a in sorted(now, key=lambda a: int(a[len(AGENT_PREFIX):]))
-                       if not (terminations[a] or truncations[a])]
+        self.agents = [] if truncated else [
+            a for a in sorted(now, key=lambda a: int(a[len(AGENT_PREFIX):])) if not terminations[a]
+        ]
         return obs, rewards, terminations, truncations, infos
 
     def state(self) -> np.ndarray:
@@ -372,4 +382,31 @@ class StreamEnv(gym.Env):
         return self._observation(), reward, False, self.world.truncated, self._info()
 
 
-__all__ = ["AGENT_PREFIX", "StreamEnv", "StreamParallelEnv", "StreamWorld", "is_stream"]
+class StreamAECEnv(parallel_to_aec_wrapper):
+    """The AEC form of a traffic stream: PettingZoo's ``parallel_to_aec`` conversion of
+    ``StreamParallelEnv`` (agents that join take their turns from the next cycle on), which
+    also takes an episode in which no flight enters before the time limit: no agent from
+    the reset on, ``agent_selection`` None, ``agent_iter`` yields nothing (PettingZoo's
+    conversion divides by the number of agents there)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(StreamParallelEnv(**kwargs))
+
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
+        # PettingZoo's reset, less its checks of infos (the parallel env gives one per
+        # agent) and with an empty agent list allowed.
+        self._observations, self.infos = self.env.reset(seed=seed, options=options)
+        self.agents = self.env.agents[:]
+        self._live_agents = self.agents[:]
+        self._actions = dict.fromkeys(self.agents)
+        self._agent_selector = AgentSelector(self._live_agents)
+        self.agent_selection = self._agent_selector.reset() if self.agents else None
+        self.terminations = dict.fromkeys(self.agents, False)
+        self.truncations = dict.fromkeys(self.agents, False)
+        self.rewards = dict.fromkeys(self.agents, 0)
+        self._cumulative_rewards = dict.fromkeys(self.agents, 0)
+        self.new_agents = []
+        self.new_values = {}
+
+
+__all__ = ["AGENT_PREFIX", "StreamAECEnv", "StreamEnv", "StreamParallelEnv", "StreamWorld", "is_stream"]

@@ -17,11 +17,30 @@ flying), and ``done_on_any=False`` (its default for parallel envs resets the who
 encounter as soon as the first aircraft arrives).
 The centralized env needs nothing: ``torchrl.envs.GymEnv("atc_nf_env/Encounter-v0")``.
 torchrl is imported on use.
+
+Traffic streams (``scenario="stream-R"``) are refused by both, at construction, with a
+ValueError: their agents join and leave during an episode, which neither TorchRL's
+PettingZoo wrapper (it reads every possible agent's info at each reset) nor the batched
+encounter worlds take. A stream's Gymnasium env has fixed slots with a mask and goes
+through ``torchrl.envs.GymEnv("atc_nf_env/Encounter-v0", scenario="stream-60")``.
 """
 
 from __future__ import annotations
 
 from typing import Any
+
+
+def refuse_streams(scenario: Any, where: str) -> None:
+    """ValueError if ``scenario`` is a traffic stream, saying what to use instead."""
+    from atc_nf_env.envs.streams import is_stream
+
+    if is_stream(scenario):
+        raise ValueError(
+            f"{where}: scenario = {scenario!r} is a traffic stream, whose agents join and leave; the TorchRL "
+            "integrations (AtcNfBatchedEnv, make_torchrl_env) fly encounters only. For a stream use "
+            f"torchrl.envs.GymEnv(\"atc_nf_env/Encounter-v0\", scenario={scenario!r}) (fixed slots with a mask) "
+            "or atc_nf_env.parallel_env directly"
+        )
 
 
 def make_torchrl_env(
@@ -30,7 +49,13 @@ def make_torchrl_env(
     """``torchrl.envs.PettingZooWrapper`` over ``atc_nf_env.parallel_env(**kwargs)``
     (or the AEC ``atc_nf_env.env`` with ``parallel=False``), with ``use_mask=True`` and
     ``done_on_any=False``. ``return_state`` adds the global state (``state()``) as
-    ``"state"`` for centralized critics (MAPPO); ``seed`` seeds the first reset."""
+    ``"state"`` for centralized critics (MAPPO); ``seed`` seeds the first reset.
+
+    Raises:
+        ValueError: for a traffic stream (see the module docstring), before torchrl is
+            imported; for any bad keyword argument, as the env does.
+    """
+    refuse_streams(kwargs.get("scenario"), "make_torchrl_env")
     from torchrl.envs import PettingZooWrapper
 
     from atc_nf_env.envs.parallel import env, parallel_env
@@ -118,7 +143,9 @@ def _batched_env_class() -> type:
             device: torch device of the tensors (the kernel runs on the CPU).
             **kwargs: the environments' keyword arguments (``atc_nf_env.envs``:
                 ``scenario``, ``wind_sigma``, ``max_aircraft``, ``n_neighbours``, ...);
-                ``render_mode`` must be None.
+                ``render_mode`` must be None. A traffic stream is refused with a
+                ValueError (it has no fixed agents; see the module docstring for what
+                takes one).
         """
 
         def __init__(self, num_envs: int = 8, *, seed: int | None = None, episode_seeds: Any = None,
@@ -129,6 +156,7 @@ def _batched_env_class() -> type:
                 raise ValueError(f"AtcNfBatchedEnv: episode_seeds = {episode_seeds!r}: must be an iterator of ints "
                                  "(e.g. itertools.count(first) or iter(list_of_seeds))")
             cfg = EnvConfig.from_kwargs(kwargs, "AtcNfBatchedEnv")
+            refuse_streams(cfg.scenario, "AtcNfBatchedEnv")
             if cfg.render_mode is not None:
                 raise ValueError(f"AtcNfBatchedEnv: render_mode = {cfg.render_mode!r}: allowed: None")
             worlds = BatchWorlds(cfg, num_envs, "AtcNfBatchedEnv")
@@ -286,4 +314,4 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module 'atc_nf_env.integrations.torchrl' has no attribute {name!r}")
 
 
-__all__ = ["AtcNfBatchedEnv", "GROUP", "make_torchrl_env"]
+__all__ = ["AtcNfBatchedEnv", "GROUP", "make_torchrl_env", "refuse_streams"]
