@@ -33,7 +33,7 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from atc_nf_env.evaluate import STEP_TRACE_KEYS, Study, evaluate, read_results
+from atc_nf_env.evaluate import STEP_TRACE_KEYS, Study, differing_header_keys, evaluate, read_results
 
 SCENARIOS = "converging-4,converging-6,random-4"
 
@@ -52,7 +52,8 @@ def reuse_mpc_runs(study: Study, runs: int, source_dir: Path, target: Path, firs
         old, records = read_results(path)
         if old is None:
             continue
-        if any(old.get(k) != header[k] for k in header if k != "airspeed_every_s"):
+        # Both ways: a shielded MPC study (its header has ``shield``) is another study.
+        if differing_header_keys(old, header, ignore=("airspeed_every_s",)):
             continue
         chosen = sorted((r for r in records if first_seed <= r["seed"] < first_seed + runs), key=lambda r: r["seed"])
         if not chosen:

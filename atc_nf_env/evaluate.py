@@ -792,15 +792,32 @@ def _check_same_study(
 ) -> None:
     """Refuse to resume a file of another study, or of the same study from another first
     seed: one file holds one range of seeds from one first seed, never two ranges."""
-    differing = [key for key in new if key not in LABEL_KEYS and old.get(key) != new[key]]
+    differing = differing_header_keys(old, new)
     if differing:
-        described = ", ".join(f"{key} {old.get(key)!r} there, {new[key]!r} here" for key in differing[:3])
+        described = ", ".join(f"{key} {_header_value(old, key)} there, {_header_value(new, key)} here"
+                              for key in differing[:3])
         raise ValueError(f"{out} holds a different study ({described}); cannot resume it")
     if seeds and not first_seed <= min(seeds) < first_seed + runs:
         raise ValueError(
             f"{out} holds the study from seed {min(seeds)}, not {first_seed}: resuming would mix two ranges of "
             "seeds in one file; resume with the --seed the study was started with, or choose another file"
         )
+
+def differing_header_keys(old: dict[str, Any], new: dict[str, Any],
+                          ignore: Iterable[str] = LABEL_KEYS) -> list[str]:
+    """The keys on which two results headers differ, looked up in both directions: a key
+    that one header has and the other lacks differs whatever its value (a missing
+    ``shield`` is an unshielded study, not "any"); ``ignore`` (default ``LABEL_KEYS``, the
+    labels) is not compared. New keys first, then those only ``old`` has."""
+    skipped = set(ignore)
+    keys = [*new, *(key for key in old if key not in new)]
+    return [key for key in keys
+            if key not in skipped and (key not in old or key not in new or old[key] != new[key])]
+
+
+def _header_value(header: dict[str, Any], key: str) -> str:
+    return repr(header[key]) if key in header else "missing"
+
 
 
 def summarize_records(records: list[dict[str, Any]]) -> dict[str, Any]:
