@@ -23,7 +23,10 @@ Outputs in ``--out``: ``model.zip`` (the final model, with the metadata
 wall time). Seeds: ``--seed`` seeds torch, NumPy and the action sampling; the training
 episodes' seeds start at ``--env-seed-offset + 1000 * seed`` (world b gets that + b at the
 first reset, later episodes draw their seeds from the worlds' generators), far from the
-evaluation seeds 0..N-1 of ``atc-nf evaluate``.
+evaluation seeds 0..N-1 of ``atc-nf evaluate``. Every training episode's seed lies in the
+benchmark's train split (``atc_nf_env.benchmark``; a stream's: the offset counts from the
+stream tasks' train split, 3 000 000 000): the first ones are checked, the envs draw the
+later ones inside it (``atc_nf_env.envs.drawn_seed_split``).
 
 Example (``agents/models/finetuned_ppo.md`` has the exact command of a shipped model):
 
@@ -63,7 +66,8 @@ class Args:
     num_envs: int = arg(16, "worlds (copies of the environment) stepped together")
     total_timesteps: int = arg(200_000, "environment steps (SB3 counts one per sub-env per step)")
     seed: int = arg(0, "seeds torch, NumPy and the action noise")
-    env_seed_offset: int = arg(10_000, "training episode seeds start at this + 1000 * seed")
+    env_seed_offset: int = arg(10_000, "training episode seeds start at this + 1000 * seed, inside the train split "
+                                       "(a stream's: counted from its first seed, 3e9)")
     # --- algorithm
     learning_rate: float = arg(3e-4, "learning rate")
     net_arch: str = arg("64,64", "hidden layer sizes of the actor and of the critic")
@@ -209,6 +213,26 @@ def check_args(args: Args) -> None:
         raise ValueError("--envelope-margin-kt needs --mode shared --vec native (the package's vector env)")
     if not args.max_wall_minutes >= 0:
         raise ValueError(f"--max-wall-minutes {args.max_wall_minutes}: must be >= 0 (0: no limit)")
+    first_training_seed(args)
+
+
+def first_training_seed(args: Args) -> int:
+    """World 0's episode seed at the first reset (world b gets this + b): ``--env-seed-offset
+    + 1000 * --seed`` from the train split's first seed. ValueError unless every world's
+    first seed lies in the train split, where the envs draw the later episodes' seeds:
+    training never flies a validation or test seed."""
+    from atc_nf_env.envs import drawn_seed_split
+    from atc_nf_env.envs.streams import is_stream
+
+    split = drawn_seed_split(is_stream(args.scenario))
+    offset = args.env_seed_offset + 1000 * args.seed
+    if offset < 0 or offset + args.num_envs > split.size:
+        raise ValueError(
+            f"--env-seed-offset {args.env_seed_offset} with --seed {args.seed} and --num-envs {args.num_envs}: the first "
+            f"episodes' seeds {split.first + offset}..{split.first + offset + args.num_envs - 1} leave the train split "
+            f"{split.first}..{split.first + split.size - 1}; need 0 <= offset + 1000 * seed <= {split.size - args.num_envs}"
+        )
+    return split.first + offset
 
 
 def net_arch_of(text: str) -> list[int]:
@@ -406,7 +430,7 @@ def train(args: Args, command: str | None = None) -> dict[str, Any]:
     model = make_model(args, venv)
     # Training episodes draw seeds far from the evaluation seeds 0..N-1 (model init seeded
     # the env with --seed; this replaces it before the first reset).
-    venv.seed(args.env_seed_offset + 1000 * args.seed)
+    venv.seed(first_training_seed(args))
     meta = model_meta(args, venv, command)
 
     start = time.perf_counter()

@@ -32,6 +32,12 @@ render_size_px       side of the rendered square frame, pixels (default 512).
 Unknown keyword arguments raise TypeError (as Python does for a function), bad values
 ValueError; both name what is allowed.
 
+Seeds: ``reset(seed=s)`` flies episode seed s; a reset without a seed draws its episode
+seed from the env's generator, always inside the benchmark's train split (0 … 999 999 999;
+for a traffic stream the stream tasks' train split, 3 000 000 000 … 3 999 999 999), so
+training never meets a validation or test seed (``drawn_seed_split``). Every env reports
+the episode's seed in its info (``"episode_seed"``).
+
 Units at the API: nm, kt, s (the wind's σ in m/s, as in the paper). One env step is
 one decision period T = 300 s flown by the batched kernel.
 """
@@ -46,6 +52,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from atc_nf_env.benchmark import SPLITS, STREAM_SPLITS, Split
 from atc_nf_env.config import SimConfig
 from atc_nf_env.envs.actions import ActionMapping
 from atc_nf_env.envs.rewards import RewardWeights
@@ -58,8 +65,6 @@ from atc_nf_env.units import DECISION_PERIOD_S, WIND_SIGMA_MPS
 MAX_EPISODE_MINUTES: float = 180.0
 RENDER_MODES: tuple[str, ...] = ("human", "rgb_array")
 _RANDOM = re.compile(r"^random-(\d+)$")
-#: Largest episode seed drawn by a reset without a seed.
-EPISODE_SEED_BOUND: int = 2**31 - 1
 
 
 @dataclass(frozen=True)
@@ -189,9 +194,19 @@ class ScenarioSource:
         return make_scenario(self.spec, seed=episode_seed)
 
 
-def draw_episode_seed(rng: np.random.Generator) -> int:
-    """An episode seed drawn from an env's np_random (for resets without a seed)."""
-    return int(rng.integers(0, EPISODE_SEED_BOUND))
+def drawn_seed_split(stream: bool = False) -> Split:
+    """The seeds a reset without a seed draws from: the benchmark's train split
+    (``atc_nf_env.benchmark.SPLITS``), or the stream tasks' train split
+    (``STREAM_SPLITS``) for a traffic stream, so that no training loop built on the envs
+    meets a validation or test seed unless it asks for one by name."""
+    return STREAM_SPLITS["train"] if stream else SPLITS["train"]
+
+
+def draw_episode_seed(rng: np.random.Generator, *, stream: bool = False) -> int:
+    """An episode seed drawn from an env's np_random (for resets without a seed):
+    uniform over ``drawn_seed_split(stream)``."""
+    split = drawn_seed_split(stream)
+    return split.first + int(rng.integers(0, split.size))
 
 
 def episode_wind(episode_seed: int, wind_sigma_mps: float) -> np.ndarray:

@@ -244,7 +244,7 @@ class StreamParallelEnv(ParallelEnv):
         else:
             if self._np_random is None:
                 self._np_random, _ = seeding.np_random(None)
-            episode_seed = draw_episode_seed(self._np_random)
+            episode_seed = draw_episode_seed(self._np_random, stream=True)
         self.world.reset(episode_seed)
         live = self._live()
         self.agents = sorted(live, key=lambda a: int(a[len(AGENT_PREFIX):]))
@@ -356,7 +356,7 @@ class StreamEnv(gym.Env):
         if seed is not None:
             check_seed(seed)
         super().reset(seed=seed)
-        episode_seed = check_seed(seed) if seed is not None else draw_episode_seed(self.np_random)
+        episode_seed = check_seed(seed) if seed is not None else draw_episode_seed(self.np_random, stream=True)
         self.world.reset(episode_seed)
         return self._observation(), self._info()
 
