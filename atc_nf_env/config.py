@@ -201,3 +201,84 @@ PHYSICS_PRESETS: dict[str, dict[str, float]] = {
     "default": {},
     "paper-nf": {"sensing_radius_nm": 30.0, "barrier_nm": 15.0},
 }
+
+
+# --------------------------------------------------------------------------- memory bounds
+#
+# A world of N aircraft holds, while it flies, the kernel's pairwise scratch: the gradient
+# of every aircraft's NF with respect to every other, (N, N, 2) float64 (``KernelScratch.grad``),
+# and the loss-of-separation pairs, (N, N) uint8 (``Trace.los_pairs``): 17 N² bytes. Beyond
+# it each aircraft holds its state, waypoints, the kernel's command and lane scratch, the
+# trace's figures, and in the envs its observation, info arrays and spaces: 2.1-2.3 kB
+# measured with tracemalloc (the vector env, 256 worlds of 4, 40 and 120 aircraft, after
+# two steps), taken twice here. The bounds below refuse, before anything is allocated, what
+# a 24-GiB machine cannot hold beside everything else a study runs.
+
+#: Bytes of pairwise scratch per pair of aircraft slots of one world (16 + 1).
+PAIRWISE_BYTES: int = 2 * 8 + 1
+#: Bytes per aircraft slot of one world beyond the pairwise scratch (twice the 2.1-2.3 kB measured).
+PER_AIRCRAFT_BYTES: int = 4096
+#: Most memory one world may hold, bytes: 1 GiB. A study flies one world in each worker
+#: process, beside its recording, the policy and the tables; at 1 GiB a world, a study on
+#: every core of a 16-core machine still leaves a third of 24 GiB free.
+WORLD_MEMORY_BYTES: int = 2**30
+#: Most memory the worlds of one batch may hold, bytes: 8 GiB, a third of a 24-GiB machine.
+#: A batch is flown in one kernel call: the B worlds of a vector env (``EncounterVectorEnv``,
+#: ``SB3VecEnv``, TorchRL's ``AtcNfBatchedEnv``) or the K candidate worlds of the MPC.
+BATCH_MEMORY_BYTES: int = 8 * 2**30
+
+
+def world_memory_bytes(n_aircraft: int) -> int:
+    """An upper estimate of the bytes one world of ``n_aircraft`` slots holds while it
+    flies (see the notes above ``PAIRWISE_BYTES``)."""
+    n = int(n_aircraft)
+    return PAIRWISE_BYTES * n * n + PER_AIRCRAFT_BYTES * n
+
+
+def _largest_within(budget_bytes: int) -> int:
+    """The most aircraft slots one world may have for ``world_memory_bytes`` to stay within
+    ``budget_bytes``."""
+    a, b = PAIRWISE_BYTES, PER_AIRCRAFT_BYTES
+    n = int((-b + math.sqrt(b * b + 4.0 * a * budget_bytes)) / (2.0 * a))
+    while world_memory_bytes(n + 1) <= budget_bytes:
+        n += 1
+    while world_memory_bytes(n) > budget_bytes:
+        n -= 1
+    return n
+
+
+#: Most aircraft (slots) of one world: ``world_memory_bytes`` within ``WORLD_MEMORY_BYTES``
+#: (7 827: 1.04 GB of pairwise scratch).
+MAX_AIRCRAFT: int = _largest_within(WORLD_MEMORY_BYTES)
+
+
+def check_aircraft_count(n_aircraft: int, name: str = "number of aircraft") -> int:
+    """``n_aircraft`` if one world of that many slots fits ``WORLD_MEMORY_BYTES``, else
+    ValueError naming ``name``, the bound and why."""
+    if n_aircraft > MAX_AIRCRAFT:
+        raise ValueError(
+            f"{name} = {n_aircraft}: at most {MAX_AIRCRAFT} aircraft in one world (its kernel scratch grows as "
+            f"{PAIRWISE_BYTES} N² bytes; {n_aircraft} would need about {world_memory_bytes(n_aircraft) / 2**30:.1f} "
+            f"GiB, the bound is {WORLD_MEMORY_BYTES / 2**30:g} GiB)"
+        )
+    return int(n_aircraft)
+
+
+def max_batch_worlds(n_aircraft: int) -> int:
+    """Most worlds of ``n_aircraft`` slots one batch may fly: ``BATCH_MEMORY_BYTES`` over
+    ``world_memory_bytes``."""
+    return max(1, BATCH_MEMORY_BYTES // world_memory_bytes(max(int(n_aircraft), 1)))
+
+
+def check_batch_size(n_worlds: int, n_aircraft: int, name: str) -> int:
+    """``n_worlds`` if that many worlds of ``n_aircraft`` slots fit ``BATCH_MEMORY_BYTES``,
+    else ValueError naming ``name``, the bound for this many aircraft and why."""
+    most = max_batch_worlds(n_aircraft)
+    if n_worlds > most:
+        raise ValueError(
+            f"{name} = {n_worlds}: at most {most} worlds of {n_aircraft} aircraft in one batch (about "
+            f"{world_memory_bytes(n_aircraft) / 1024:.1f} KiB each; {n_worlds} would need "
+            f"{n_worlds * world_memory_bytes(n_aircraft) / 2**30:.1f} GiB, the bound is "
+            f"{BATCH_MEMORY_BYTES / 2**30:g} GiB)"
+        )
+    return int(n_worlds)

@@ -35,8 +35,14 @@ The episodes are written with ``minari.create_dataset_from_buffers`` (Minari's
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
+import os
+import shutil
 import sys
+import tempfile
 import warnings
+from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 import numpy as np
@@ -77,14 +83,96 @@ def _stack_infos(infos: list[dict[str, Any]], clipped: list[np.ndarray]) -> dict
     return stacked
 
 
+#: Where a dataset is written before it is complete: a hidden folder of Minari's store
+#: (Minari lists no hidden folder), renamed into place at the end.
+PARTIAL_PREFIX = ".atc-nf-partial-"
+#: The id grammar, for messages: Minari's own (``minari.dataset.minari_dataset.parse_dataset_id``).
+DATASET_ID_FORM = ("[namespace/]name-vN, e.g. atc-nf/converging-4/mpc-v0 (letters, digits, '-' and '_'; "
+                   "namespaces separated by single '/'; N a version number)")
+
+
+def dataset_path(dataset_id: Any) -> Path:
+    """The folder the dataset ``dataset_id`` has in Minari's store (``MINARI_DATASETS_PATH``,
+    default ``~/.minari/datasets``), after checking the id: Minari's grammar
+    ``[namespace/]name-vN`` with a version, written as Minari writes it back, and a folder
+    inside the store (no ``..``, no absolute path, no link out of it). ValueError otherwise,
+    before anything flies."""
+    minari = _import_minari()  # noqa: F841 - the extra's message when Minari is missing
+    from minari.dataset.minari_dataset import gen_dataset_id, parse_dataset_id
+    from minari.storage import get_dataset_path
+
+    shown = repr(dataset_id) if not isinstance(dataset_id, str) or len(dataset_id) <= 80 else repr(dataset_id[:79] + "…")
+    if not isinstance(dataset_id, str):
+        raise ValueError(f"dataset id {shown}: must be a string of the form {DATASET_ID_FORM}")
+    try:
+        namespace, name, version = parse_dataset_id(dataset_id)
+    except (ValueError, TypeError):  # TypeError: Minari's parser on an id without a version
+        raise ValueError(f"dataset id {shown}: must be of the form {DATASET_ID_FORM}") from None
+    if "//" in dataset_id or gen_dataset_id(namespace, name, version) != dataset_id:
+        raise ValueError(f"dataset id {shown}: must be of the form {DATASET_ID_FORM}, written as Minari writes it "
+                         f"back ({gen_dataset_id(namespace, name, version)!r})")
+    store = Path(get_dataset_path()).resolve()
+    target = (store / dataset_id).resolve()
+    if store not in target.parents:
+        raise ValueError(f"dataset id {shown}: its folder {target} lies outside Minari's store {store}")
+    return target
+
+
+def _remove_stale_partials(store: Path) -> None:
+    """Delete the partial datasets that processes no longer running left in ``store``
+    (killed mid-write); a running process's own is left alone."""
+    for folder in store.glob(PARTIAL_PREFIX + "*"):
+        try:
+            pid = int(folder.name[len(PARTIAL_PREFIX):].split("-")[0])
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            shutil.rmtree(folder, ignore_errors=True)
+        except (ValueError, PermissionError, OSError):
+            continue
+
+
+def _check_target_free(target: Path, dataset_id: str) -> None:
+    """ValueError if the dataset's folder is taken: by a complete dataset (Minari never
+    overwrites one) or by anything else (a partial one an older version left)."""
+    if not os.path.lexists(target):
+        return
+    try:
+        complete = json.loads((target / "data" / "metadata.json").read_text())["dataset_id"] == dataset_id
+    except (OSError, ValueError, KeyError, TypeError):
+        complete = False
+    if complete:
+        raise ValueError(f"dataset {dataset_id!r} already exists locally; delete it first "
+                         f"(minari.delete_dataset({dataset_id!r})) or choose another id")
+    raise ValueError(f"dataset {dataset_id!r}: its folder {target} holds no complete dataset (an interrupted write "
+                     f"of an older version?); delete the folder (minari.delete_dataset({dataset_id!r})) and run again")
+
+
+@contextlib.contextmanager
+def _minari_store(path: Path) -> Iterator[None]:
+    """Minari's store is ``path`` inside the block (Minari reads ``MINARI_DATASETS_PATH`` at each call)."""
+    before = os.environ.get("MINARI_DATASETS_PATH")
+    os.environ["MINARI_DATASETS_PATH"] = str(path)
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ["MINARI_DATASETS_PATH"]
+        else:
+            os.environ["MINARI_DATASETS_PATH"] = before
+
+
 def record_dataset(policy: str, task: str, episodes: int, dataset_id: str, *, first_seed: int = 0,
                    policy_kwargs: dict[str, Any] | None = None, progress: bool = False) -> Any:
     """Fly ``policy`` on ``episodes`` training seeds of ``task`` (``first_seed`` …) and
     write them as the local Minari dataset ``dataset_id``; returns the ``MinariDataset``.
 
-    ValueError when the task, the count or the seeds are out of range, or a dataset of
-    that id already exists (Minari never overwrites one: delete it with
-    ``minari.delete_dataset(id)`` first).
+    ValueError when the id is not Minari's ``[namespace/]name-vN`` or its folder would lie
+    outside Minari's store (``dataset_path``), the task, the count or the seeds are out of
+    range, or a dataset of that id already exists (Minari never overwrites one: delete it
+    with ``minari.delete_dataset(id)`` first); all before anything flies. The dataset is
+    written to a hidden folder of the store and renamed into place once complete, so a run
+    killed or stopped by a full disk leaves no dataset behind (and the next run deletes
+    what it left).
     """
     import gymnasium as gym
 
@@ -95,6 +183,7 @@ def record_dataset(policy: str, task: str, episodes: int, dataset_id: str, *, fi
     minari = _import_minari()
     from minari.data_collector import EpisodeBuffer
 
+    target = dataset_path(dataset_id)
     task_ = get_task(task)
     if task_.is_stream:
         raise ValueError(f"task = {task!r}: datasets record encounter tasks only "
@@ -106,9 +195,7 @@ def record_dataset(policy: str, task: str, episodes: int, dataset_id: str, *, fi
             train.first <= first_seed and first_seed + episodes <= train.first + train.size):
         raise ValueError(f"first_seed = {first_seed!r}, episodes = {episodes}: datasets take training seeds, "
                          f"{train.first} … {train.first + train.size - 1}")
-    if dataset_id in minari.list_local_datasets():
-        raise ValueError(f"dataset {dataset_id!r} already exists locally; delete it first "
-                         f"(minari.delete_dataset({dataset_id!r})) or choose another id")
+    _check_target_free(target, dataset_id)
     actor = make_policy(policy, **dict(policy_kwargs or {}))
     env = gym.make(atc_nf_env.ENV_ID, scenario=task_.scenario, wind_sigma=task_.wind_sigma_mps,
                    max_episode_minutes=task_.max_time_s / 60.0)
@@ -144,6 +231,30 @@ def record_dataset(policy: str, task: str, episodes: int, dataset_id: str, *, fi
                                      truncations=truncations, infos=_stack_infos(infos, clipped)))
         if progress:
             print(f"episode {index + 1}/{episodes} (seed {seed})", file=sys.stderr, flush=True)
+    from minari.namespace import create_namespace, list_local_namespaces
+    from minari.storage import get_dataset_path
+
+    store = Path(get_dataset_path()).resolve()
+    _remove_stale_partials(store)
+    partial = Path(tempfile.mkdtemp(prefix=f"{PARTIAL_PREFIX}{os.getpid()}-", dir=store))
+    try:
+        with _minari_store(partial):
+            _write_buffers(minari, buffers, env, dataset_id, policy, task_, first_seed, episodes)
+        _check_target_free(target, dataset_id)  # another process may have written it meanwhile
+        namespace = target.parent.relative_to(store).as_posix()
+        if namespace != "." and namespace not in list_local_namespaces():
+            create_namespace(namespace)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.rename(partial / dataset_id, target)
+    finally:
+        shutil.rmtree(partial, ignore_errors=True)
+    return minari.load_dataset(dataset_id)
+
+
+def _write_buffers(minari: Any, buffers: list[Any], env: Any, dataset_id: str, policy: str, task_: Any,
+                   first_seed: int, episodes: int) -> Any:
+    """``minari.create_dataset_from_buffers`` with this module's metadata, in Minari's
+    current store."""
     with warnings.catch_warnings():
         # Minari asks for a code permalink and an author e-mail: a local dataset has neither.
         warnings.filterwarnings("ignore", message=r"`(code_permalink|author_email)` is set to None")
@@ -208,6 +319,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, ImportError) as error:
         print(f"atc-nf dataset: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # a full disk or an unwritable store: nothing was left behind
+        print(f"atc-nf dataset: cannot write {args.dataset_id!r}: {error.strerror or error}; no dataset was written",
+              file=sys.stderr)
+        return 1
     print(f"wrote {args.dataset_id}: {dataset.total_episodes} episodes, {dataset.total_steps} steps "
           "(minari.load_dataset reads it)")
     return 0

@@ -14,6 +14,7 @@ import math
 import os
 import re
 import stat
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -130,6 +131,8 @@ def validate_scenario(scenario: Scenario, check_start_separation: bool = True, a
         raise ValueError(f"start_xy has shape {scenario.start_xy.shape}; expected (n, 2)")
     if n < (0 if allow_empty else 1):
         raise ValueError(f"number of aircraft n = {n}: must be >= 1")
+    if not isinstance(scenario, StreamScenario):  # a stream's world holds max_airborne slots, checked there
+        _check_aircraft_count(n)
     expected = {"start_heading": (n,), "dest_xy": (n, 2), "dest_heading": (n,)}
     for name, shape in expected.items():
         if getattr(scenario, name).shape != shape:
@@ -164,14 +167,72 @@ def validate_scenario(scenario: Scenario, check_start_separation: bool = True, a
                 f"centre: must be within workspace_radius_nm - aircraft radius = {inner:.1f} nm"
             )
     if n > 1 and check_start_separation:
-        diff = scenario.start_xy[:, None, :] - scenario.start_xy[None, :, :]
-        sep = np.hypot(diff[..., 0], diff[..., 1]) + np.diag(np.full(n, np.inf))
-        i, j = np.unravel_index(int(np.argmin(sep)), sep.shape)
-        if sep[i, j] < SEPARATION_MIN_NM:
+        from atc_nf_env.config import SimConfig
+
+        distance, i, j = closest_pair(scenario.start_xy)
+        if distance < SEPARATION_MIN_NM:
             raise ValueError(
-                f"start_xy: aircraft {i} and {j} start {sep[i, j]:.2f} nm apart, in conflict; "
+                f"start_xy: aircraft {i} and {j} start {distance:.2f} nm apart, in conflict; "
                 f"initial separations must be >= {SEPARATION_MIN_NM} nm"
             )
+        physics = SimConfig()
+        if distance < physics.sensing_radius_nm:
+            warnings.warn(
+                f"start_xy: aircraft {i} and {j} start {distance:.2f} nm apart, inside the NF's sensing radius "
+                f"({physics.sensing_radius_nm:g} nm): their proximity function acts from the first step, and below "
+                f"its barrier distance ({physics.barrier_nm:g} nm) it commands up to the "
+                f"{physics.airspeed_cap_kt:g}-kt cap within a period, before any policy can separate them; expect "
+                f"airspeeds outside [{physics.airspeed_min_kt:g}, {physics.airspeed_max_kt:g}] kt (starts at least "
+                f"{physics.sensing_radius_nm:g} nm apart begin beyond its reach)",
+                CloseStartWarning,
+                stacklevel=2,
+            )
+
+
+class CloseStartWarning(UserWarning):
+    """Two aircraft of a scenario start closer than the NF's sensing radius (default physics):
+    legal (the separation minimum is 5 nm), but the proximity function acts from the first
+    step and, closer than its barrier distance, commands airspeeds far outside the envelope
+    before any policy can act (docs/environments.md)."""
+
+
+#: Distance matrices of ``closest_pair`` are built this many elements at a time (8 MB of float64).
+_PAIR_BLOCK_ELEMENTS: int = 2**20
+
+
+def closest_pair(points: np.ndarray) -> tuple[float, int, int]:
+    """(distance nm, i, j) of the closest two of ``points`` (n, 2) nm, n >= 2, i < j: the
+    first in row-major order of the full ``np.hypot`` distance matrix, as ``np.argmin``
+    would give it, computed a block of rows at a time against the columns after each row,
+    so that memory stays O(n) (60 000 aircraft: 8-MB blocks, not a 54-GiB matrix)."""
+    points = np.asarray(points, dtype=np.float64)
+    n = points.shape[0]
+    rows = max(1, _PAIR_BLOCK_ELEMENTS // n)
+    best, best_i, best_j = math.inf, 0, 1
+    for first in range(0, n - 1, rows):
+        block = points[first : first + rows]
+        diff = block[:, None, :] - points[None, first:, :]
+        squared = diff[..., 0] ** 2 + diff[..., 1] ** 2
+        squared[np.tril_indices(block.shape[0], 0, squared.shape[1])] = np.inf  # j <= i
+        least = squared.min()
+        if not least <= best * best * (1.0 + 1e-9):
+            continue
+        # The exact distances (hypot, as the full matrix) of the entries that may be the least.
+        near = np.flatnonzero(squared.ravel() <= least * (1.0 + 1e-9))
+        i, j = np.divmod(near, squared.shape[1])
+        exact = np.hypot(diff[i, j, 0], diff[i, j, 1])
+        k = int(np.argmin(exact))  # the first of the least, in row-major order
+        if exact[k] < best:
+            best, best_i, best_j = float(exact[k]), first + int(i[k]), first + int(j[k])
+    return best, best_i, best_j
+
+
+def _check_aircraft_count(n: int, name: str = "number of aircraft n") -> int:
+    """``atc_nf_env.config.check_aircraft_count``: at most ``MAX_AIRCRAFT`` in one world,
+    refused before anything of that size is allocated."""
+    from atc_nf_env.config import check_aircraft_count
+
+    return check_aircraft_count(n, name)
 
 
 def converging(n: int, radius_nm: float = ENCOUNTER_RADIUS_NM, **kwargs: Any) -> Scenario:
@@ -179,6 +240,7 @@ def converging(n: int, radius_nm: float = ENCOUNTER_RADIUS_NM, **kwargs: Any) ->
     centre, each bound for the diametrically opposite point (section IV-A)."""
     if not isinstance(n, (int, np.integer)) or n < 1:
         raise ValueError(f"number of aircraft n = {n!r}: must be an integer >= 1")
+    _check_aircraft_count(int(n))
     if not (math.isfinite(radius_nm) and radius_nm > 0):
         raise ValueError(f"radius_nm = {radius_nm!r}: must be a finite number > 0")
     angles = 2.0 * np.pi * np.arange(n) / n
@@ -358,6 +420,7 @@ class StreamScenario(Scenario):
         if isinstance(self.max_airborne, bool) or not isinstance(self.max_airborne, (int, np.integer)) \
                 or self.max_airborne < 1:
             raise ValueError(f"max_airborne = {self.max_airborne!r}: must be an integer >= 1")
+        _check_aircraft_count(int(self.max_airborne), "max_airborne")
         if not (math.isfinite(self.entry_clearance_nm) and self.entry_clearance_nm >= SEPARATION_MIN_NM):
             raise ValueError(
                 f"entry_clearance_nm = {self.entry_clearance_nm!r}: must be a number of nm >= {SEPARATION_MIN_NM}"
@@ -555,6 +618,7 @@ def scenario_from_dict(data: Mapping[str, Any]) -> Scenario:
             f"aircraft = {aircraft!r}: must be a non-empty list of "
             '{"start": [x, y], "destination": [x, y]} (n >= 1)'
         )
+    _check_aircraft_count(len(aircraft), "len(aircraft)")
     starts, dests, headings, arrivals = [], [], [], []
     for index, entry in enumerate(aircraft):
         if not isinstance(entry, Mapping):

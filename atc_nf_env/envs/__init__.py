@@ -53,7 +53,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from atc_nf_env.benchmark import SPLITS, STREAM_SPLITS, Split
-from atc_nf_env.config import SimConfig
+from atc_nf_env.config import SimConfig, check_aircraft_count
 from atc_nf_env.envs.actions import ActionMapping
 from atc_nf_env.envs.rewards import RewardWeights
 from atc_nf_env.episode import episode_wind_kt
@@ -185,7 +185,10 @@ class ScenarioSource:
                 f"{where}: max_aircraft = {max_aircraft} is smaller than the scenario's {n} aircraft; "
                 f"use max_aircraft >= {n} (or None)"
             )
-        return n_slots
+        try:
+            return check_aircraft_count(n_slots, "max_aircraft")
+        except ValueError as error:
+            raise ValueError(f"{where}: {error}") from None
 
     def scenario(self, episode_seed: int) -> Scenario:
         """The scenario of the episode with this seed (a new draw for random-N)."""

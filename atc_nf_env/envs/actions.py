@@ -82,6 +82,25 @@ class ActionMapping:
 DEFAULT_MAPPING = ActionMapping()
 
 
+def nonfinite_actions(actions: np.ndarray) -> str | None:
+    """None if every action of ``actions`` (..., 2) is finite; else a short text naming the
+    first NaN or inf (its world, aircraft and component where the shape says so) and how
+    many there are, for an error message that stays one line whatever the batch."""
+    bad = ~np.isfinite(actions)
+    if not bad.any():
+        return None
+    index = np.unravel_index(int(np.argmax(bad)), bad.shape)
+    names = ("world", "aircraft")[-(actions.ndim - 1):] if 2 <= actions.ndim <= 3 else ()
+    where = [f"{name} {int(k)}" for name, k in zip(names, index)]
+    if actions.ndim <= 3:
+        where.append(("distance", "angle")[int(index[-1])] if actions.shape[-1] == 2 else f"component {int(index[-1])}")
+    else:
+        where = [f"index {tuple(int(k) for k in index)}"]
+    count = int(bad.sum())
+    return (f"{float(actions[index])} at {', '.join(where)} ({count} non-finite value{'s' if count > 1 else ''} "
+            f"in an array of shape {actions.shape})")
+
+
 def clip_actions(actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Clip actions (..., 2) to [-1, 1]; returns (clipped float64 copy, (...,) bool: was clipped).
 
@@ -89,8 +108,9 @@ def clip_actions(actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ValueError: if any action is NaN or infinite (clipping would hide it).
     """
     actions = np.asarray(actions, dtype=np.float64)
-    if not np.isfinite(actions).all():
-        raise ValueError(f"actions contain NaN or inf: {actions.tolist()}; each must be finite, in [-1, 1]")
+    bad = nonfinite_actions(actions)
+    if bad is not None:
+        raise ValueError(f"actions contain NaN or inf: {bad}; each must be finite, in [-1, 1]")
     clipped = np.clip(actions, -1.0, 1.0)
     return clipped, (clipped != actions).any(axis=-1)
 
@@ -237,6 +257,7 @@ __all__ = [
     "action_to_waypoint",
     "clamp_to_workspace",
     "clip_actions",
+    "nonfinite_actions",
     "waypoint_to_action",
     "waypoints_for_state",
 ]

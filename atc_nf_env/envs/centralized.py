@@ -14,7 +14,7 @@ from numba import njit
 
 from atc_nf_env import kernel
 from atc_nf_env.envs import EnvConfig, ScenarioSource, draw_episode_seed, episode_wind
-from atc_nf_env.envs.actions import WORKSPACE_MARGIN_NM, _waypoints_from_state
+from atc_nf_env.envs.actions import WORKSPACE_MARGIN_NM, _waypoints_from_state, nonfinite_actions
 from atc_nf_env.envs.observations import ObservationSpec, _observe
 from atc_nf_env.envs.rewards import reward_weight_vector
 from atc_nf_env.kernel import (
@@ -511,9 +511,10 @@ def validate_step_actions(action: Any, shape: tuple[int, ...], where: str) -> tu
             f"{where}: action has shape {array.shape}; expected {shape} (per aircraft: "
             "[distance, angle] in [-1, 1])"
         )
-    if not np.isfinite(array).all():
+    bad = nonfinite_actions(array)
+    if bad is not None:
         raise ValueError(
-            f"{where}: action contains NaN or inf: {array.tolist()}; allowed: finite numbers in [-1, 1] "
+            f"{where}: action contains NaN or inf: {bad}; allowed: finite numbers in [-1, 1] "
             "(values outside are clipped)"
         )
     clipped = np.clip(array, -1.0, 1.0)

@@ -31,6 +31,7 @@ from gymnasium.vector.utils import batch_space
 
 from atc_nf_env import kernel
 from atc_nf_env.calibration import check_calibrated
+from atc_nf_env.config import check_batch_size
 from atc_nf_env.envs import EnvConfig, ScenarioSource, draw_episode_seed, episode_wind
 from atc_nf_env.scenarios import check_seed
 from atc_nf_env.envs.actions import waypoints_for_state
@@ -69,6 +70,10 @@ class BatchWorlds:
         self.num_envs = int(num_envs)
         self.source = ScenarioSource(cfg.scenario)
         self.n_slots = self.source.slots(cfg.max_aircraft, where)
+        try:
+            check_batch_size(self.num_envs, self.n_slots, "num_envs")
+        except ValueError as error:
+            raise ValueError(f"{where}: {error}") from None
         self.obs_spec = ObservationSpec.for_config(cfg.config, cfg.n_neighbours, cfg.expose_wind)
         check_calibrated(cfg.config, self.source.workspace_radius_nm)
         self.params = cfg.config.to_params(self.source.workspace_radius_nm)

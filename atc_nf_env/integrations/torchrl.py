@@ -99,6 +99,7 @@ def _batched_env_class() -> type:
     from atc_nf_env.envs import EnvConfig
     from atc_nf_env.envs.centralized import validate_step_actions
     from atc_nf_env.envs.vector import BatchWorlds
+    from atc_nf_env.scenarios import check_seed
 
     class AtcNfBatchedEnv(EnvBase):
         """B worlds of the encounter as one TorchRL env, stepped in one kernel call.
@@ -216,7 +217,8 @@ def _batched_env_class() -> type:
         # ------------------------------------------------------------------ TorchRL API
 
         def _set_seed(self, seed: int | None) -> None:
-            self._pending_seed = None if seed is None else int(seed)
+            # The project's one seed rule, before TorchRL's seed generator sees the value.
+            self._pending_seed = None if seed is None else check_seed(seed, "AtcNfBatchedEnv: seed")
 
         def _observation(self, los: Any = None, violation: Any = None) -> dict[str, Any]:
             worlds = self.worlds
