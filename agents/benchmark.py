@@ -73,6 +73,14 @@ def run(models: list[str], scenarios: list[str], runs: int, mpc_runs: int, out: 
         shield: bool = False, first_seed: int = 0) -> dict[str, Any]:
     results: dict[str, Any] = {}
     plan = [(policy, False) for policy in [*baselines, *models]] + [(model, True) for model in models if shield]
+    labels = [label_of(policy, shielded) for policy, shielded in plan]
+    shared = sorted({label for label in labels if labels.count(label) > 1})
+    if shared:
+        # One label is one results file and one row: a second study would be refused on
+        # resume, or (a model named mpc.zip) take the reference's row.
+        raise ValueError(f"two studies would share the label {shared[0]!r} (its results file and table row): "
+                         f"{', '.join(p for (p, s), l in zip(plan, labels) if l == shared[0])}; give each model "
+                         "file a name of its own, and none a baseline's")
     for scenario in scenarios:
         results[scenario] = {}
         for policy, shielded in plan:
@@ -91,8 +99,7 @@ def run(models: list[str], scenarios: list[str], runs: int, mpc_runs: int, out: 
             # What the cards and tables say about the runs: their settings and seeds.
             summary["study"] = {"wind_sigma_mps": header["wind_sigma_mps"], "max_time_s": header["max_time_s"],
                                 "build": header["build"], "seeds": [first_seed, first_seed + n - 1]}
-            if shielded and summary.get("shield"):
-                summary["shield"].update(breaches_after_unresolved(path))
+            # A shielded summary counts its breached runs itself (shield.runs_breached, ...).
             results[scenario][label] = summary
             p99 = summary["decision_s"].get("p99")
             print(f"{scenario}: {label} decision mean {_fmt_latency(summary['wall_s_per_decision'])} (over every "
@@ -106,16 +113,9 @@ def breaches_after_unresolved(path: Path) -> dict[str, Any]:
     decision its own prediction found unsafe (``shield_unresolved`` > 0), and the range of
     such decisions per breached run: whether the breaches are the filter's known
     give-ups or escaped its prediction."""
-    _, records = read_results(path)
-    # The predicates of the summary's runs_with_envelope_violation and runs_with_los.
-    breached = [r for r in records if r["envelope_violation_fraction"] > 0 or r["los_count"] > 0]
-    unresolved = [int(r.get("policy_info", {}).get("shield_unresolved", 0)) for r in breached]
-    given_up = [u for u in unresolved if u > 0]
-    return {
-        "runs_breached": len(breached),
-        "runs_breached_after_unresolved": len(given_up),
-        "unresolved_per_breached_run": [min(unresolved), max(unresolved)] if unresolved else None,
-    }
+    from atc_nf_env.shield import breached_runs
+
+    return breached_runs(read_results(path)[1])
 
 
 def _fmt_latency(seconds: float) -> str:
@@ -206,9 +206,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     for model in models:
         if not Path(model).is_file():
             parser.error(f"--models: {model} does not exist")
-    results = run(models, [s for s in args.scenarios.split(",") if s], args.runs, args.mpc_runs or args.runs,
-                  args.out, args.reuse_mpc, args.workers, not args.no_progress,
-                  [b for b in args.baselines.split(",") if b], args.shield, args.first_seed)
+    try:
+        results = run(models, [s for s in args.scenarios.split(",") if s], args.runs, args.mpc_runs or args.runs,
+                      args.out, args.reuse_mpc, args.workers, not args.no_progress,
+                      [b for b in args.baselines.split(",") if b], args.shield, args.first_seed)
+    except ValueError as error:
+        print(f"agents.benchmark: error: {error}", file=sys.stderr)
+        return 2
     args.summary.parent.mkdir(parents=True, exist_ok=True)
     args.summary.write_text(json.dumps(results, indent=2) + "\n")
     text = table(results)

@@ -325,6 +325,38 @@ def _study_records(policy: str, task: Task, split: Split, runs: int, shield: boo
     return [r for r in records if int(r["seed"]) in wanted]
 
 
+#: How many hex digits of a model file's SHA-256 its results label carries.
+LABEL_HASH_DIGITS = 12
+
+
+def results_label(policy: str, shield: bool = False) -> str:
+    """The name of ``policy``'s results file in ``score_card``'s ``results_dir`` (without
+    ``.jsonl``): a registered name as given (``mpc``, ``nf``; ``mpc+shield`` inside the
+    safety filter), a model file as its stem, ``@`` and the first ``LABEL_HASH_DIGITS`` hex
+    digits of its bytes' SHA-256, then its suffix (``policy@3f9c0a1b2d4e.pt``,
+    ``policy@3f9c0a1b2d4e+shield.pt``).
+
+    So two different models of one file name (``a/policy.pt``, ``b/policy.pt``) keep two
+    files, one model reached by two paths keeps one, and no model file (``mpc.zip``) can
+    take the file of a registered name such as the MPC reference's ``mpc``: a file's label
+    ends with a model file's suffix, which no policy name does (``make_policy`` reads such
+    a name as a file, and ``register_policy`` refuses it).
+
+    Raises:
+        ValueError: ``policy`` names a model file that cannot be read.
+    """
+    from atc_nf_env.evaluate import file_sha256
+
+    suffix = "+shield" if shield else ""
+    if Path(policy).suffix.lower().lstrip(".") not in {"zip", *policy_file_suffixes()}:
+        return policy + suffix
+    try:
+        digest = file_sha256(policy)
+    except OSError as error:
+        raise ValueError(f"policy {policy!r}: cannot read the model file: {error.strerror}") from None
+    return f"{Path(policy).stem}@{digest[:LABEL_HASH_DIGITS]}{suffix}{Path(policy).suffix}"
+
+
 def score_card(policy: str, task: str, split: str, runs: int, *, shield: bool = False, reference: bool = True,
                results_dir: Path | None = None, workers: int | None = None, progress: bool = False,
                policy_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -335,7 +367,8 @@ def score_card(policy: str, task: str, split: str, runs: int, *, shield: bool = 
     are kept in ``results_dir`` and reused by later cards of the same task and split);
     a stream task's ratio is to the direct flight, so ``reference`` is ignored there.
     With ``results_dir`` every study's runs go to a resumable results file there
-    (``<task>/<split>/<label>.jsonl``); otherwise they are kept in memory only.
+    (``<task>/<split>/<label>.jsonl``, ``results_label``); otherwise they are kept in
+    memory only.
     """
     task_ = get_task(task)
     split_ = get_split(split, task=task_)
@@ -348,10 +381,7 @@ def score_card(policy: str, task: str, split: str, runs: int, *, shield: bool = 
         folder.mkdir(parents=True, exist_ok=True)
         return folder / f"{label}.jsonl"
 
-    # A policy file is labelled by its name; its results file's header holds the file's hash, so
-    # two different files of one name are refused, never mixed.
-    is_file = Path(policy).suffix.lstrip(".") in {"zip", *policy_file_suffixes()}
-    label = (Path(policy).stem if is_file else policy) + ("+shield" if shield else "")
+    label = results_label(policy, shield) if results_dir is not None else ""
     records = _study_records(policy, task_, split_, runs, shield, path_of(label), workers, progress, policy_kwargs)
     ref = None
     if reference and not task_.is_stream:
@@ -387,6 +417,48 @@ def _format_stream_block(stream: dict[str, Any]) -> str:
             f"max airborne {stream['max_airborne']}")
 
 
+#: What makes two score cards the same card: one policy scored on the same seeds of one
+#: task of one suite version (a re-scoring only re-measures its timings).
+CARD_IDENTITY_KEYS: tuple[str, ...] = ("suite_version", "task", "split", "policy", "shield", "runs")
+#: A larger file is no score card (a card is a few kB), bytes.
+MAX_CARD_BYTES = 1 << 20
+
+
+def check_card_output(path: Path | None, identity: Mapping[str, Any], *, overwrite: bool = False) -> None:
+    """Refuse, before anything flies, a card file (``--out``) that cannot be written (a
+    missing folder, a directory, no write access) or that would silently replace another
+    card: an existing file is replaced only if it holds the card ``identity`` describes
+    (``CARD_IDENTITY_KEYS``), or with ``overwrite``.
+
+    Raises:
+        ValueError: saying what was wrong and what is allowed.
+    """
+    from atc_nf_env.cli import _check_output_file
+
+    if path is None:
+        return
+    _check_output_file(path, "--out")
+    if path.exists() and not path.is_file():  # a FIFO would block the read below, a device never end
+        raise ValueError(f"--out {path} is not a regular file; give the path of a .json file")
+    if overwrite or not path.exists():
+        return
+    old = None
+    if path.stat().st_size <= MAX_CARD_BYTES:
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            pass
+    if not isinstance(old, dict) or "score" not in old:
+        raise ValueError(f"--out {path} exists and is not a score card; choose another file, or give --overwrite "
+                         "to replace it")
+    differing = [key for key in CARD_IDENTITY_KEYS if key not in old or old[key] != identity[key]]
+    if differing:
+        described = ", ".join(f"{key} {old[key]!r} there, {identity[key]!r} here" if key in old
+                              else f"{key} missing there, {identity[key]!r} here" for key in differing)
+        raise ValueError(f"--out {path} holds another score card ({described}); choose another file, or give "
+                         "--overwrite to replace it")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="atc-nf benchmark",
@@ -403,12 +475,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--results-dir", type=Path, default=None,
                         help="keep every study's runs here, resumable (default: in memory only)")
     parser.add_argument("--workers", type=int, default=None)
-    parser.add_argument("--out", type=Path, default=None, help="write the card as JSON to this file")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="write the card as JSON to this file (its folder must exist); a file there already "
+                             "is replaced only if it holds this same card (same suite version, task, split, policy, "
+                             "shield and runs), otherwise refused unless --overwrite")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="let --out replace whatever file is there (another card, or not a card)")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
-    if args.out is not None and args.out.exists() and not args.out.is_file():
-        parser.error(f"--out {args.out}: not a regular file")
     try:
+        check_card_output(args.out, {"suite_version": SUITE_VERSION, "task": args.task, "split": args.split,
+                                     "policy": args.policy, "shield": args.shield, "runs": args.runs},
+                          overwrite=args.overwrite)
         card = score_card(args.policy, args.task, args.split, args.runs, shield=args.shield,
                           reference=not args.no_reference, results_dir=args.results_dir, workers=args.workers,
                           progress=not args.no_progress)
@@ -422,4 +500,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from atc_nf_env.cli import main as atc_nf
+
+    sys.exit(atc_nf(["benchmark", *sys.argv[1:]]))  # as `atc-nf benchmark` (one line on Ctrl-C)

@@ -100,7 +100,9 @@ def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
     # No argparse defaults here: an option left out is not passed, and the MPC keeps its
     # own, which the help text quotes.
     group = parser.add_argument_group(
-        "MCMC-MPC settings (policy mpc; the defaults are the homing proposal's, see --proposal)")
+        "MCMC-MPC settings (of --policy mpc and, with --shield, of the safety filter's MPC fallback, over its "
+        "defaults: the MPC's, and on traffic streams --sampling per-cluster --progress-fraction 0.5 "
+        "--progress-periods 6; the defaults are the homing proposal's, see --proposal)")
     group.add_argument("--extractions", type=_positive_int, help="K, proposals per decision (default: 1000)")
     group.add_argument("--horizon", type=_positive_int, help="N, periods in the horizon (default: 4)")
     group.add_argument("--wind-model", choices=("none", "sampled", "estimated"),
@@ -141,13 +143,15 @@ def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
                             "near home: docs/mpc.md)")
 
 
-def _policy_kwargs(args: argparse.Namespace) -> dict:
+def _mpc_settings(args: argparse.Namespace) -> dict:
+    """The MCMC-MPC settings given on the command line (``MPCSettings`` fields)."""
     names = ("extractions", "horizon", "wind_model", "constraint_check", "acceptance", "cost_exponent", "proposal",
              "search", "sampling", "cluster_radius_nm", "progress_fraction", "progress_periods", "recovery_angle_deg",
              "approach_angle_deg")
     kwargs = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
-    if kwargs and args.policy != "mpc":
-        raise ValueError(f"--{next(iter(kwargs)).replace('_', '-')} applies to --policy mpc only")
+    if kwargs and args.policy != "mpc" and not getattr(args, "shield", False):
+        raise ValueError(f"--{next(iter(kwargs)).replace('_', '-')} applies to --policy mpc, or with --shield to the "
+                         "safety filter's MPC fallback")
     for name in ("recovery_angle", "approach_angle"):
         if f"{name}_deg" in kwargs:
             # The MPC's settings are in rad; the option is checked in its own unit, so the error names it.
@@ -156,6 +160,19 @@ def _policy_kwargs(args: argparse.Namespace) -> dict:
                 raise ValueError(f"--{name.replace('_', '-')}-deg {degrees!r}: must be a number in (0, 90)")
             kwargs[f"{name}_rad"] = math.radians(degrees)
     return kwargs
+
+
+def _policy_kwargs(args: argparse.Namespace) -> dict:
+    """The policy's settings: the MPC's options, for --policy mpc."""
+    settings = _mpc_settings(args)
+    return settings if args.policy == "mpc" else {}
+
+
+def _shield_kwargs(args: argparse.Namespace) -> dict:
+    """The safety filter's settings (--shield): the MPC's options go to its MPC fallback,
+    over the fallback's defaults (``SafetyFilter``'s ``mpc_settings``)."""
+    settings = _mpc_settings(args)
+    return {"mpc_settings": settings} if getattr(args, "shield", False) and settings else {}
 
 
 def _add_episode_options(parser: argparse.ArgumentParser) -> None:
@@ -196,7 +213,8 @@ def _add_episode_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--shield", action="store_true",
                         help="fly the policy inside the safety filter (atc_nf_env.shield): each waypoint set is "
                         "predicted two periods ahead and replaced by the closest safe alternative, or the MPC's "
-                        "decision, when unsafe; the summary counts its interventions")
+                        "decision, when unsafe (on traffic streams the per-cluster MPC; the MPC settings below "
+                        "apply to it); the summary counts its interventions and the runs that breached anyway")
     _add_mpc_options(parser)
 
 
@@ -303,7 +321,8 @@ def _fly(args: argparse.Namespace) -> int:
     if args.shield:
         from atc_nf_env.shield import SafetyFilter
 
-        policy = SafetyFilter(policy)
+        policy = SafetyFilter(policy, **_shield_kwargs(args))
+        policy.fallback_for(scenario)  # a setting that does not go with the scenario's fallback, refused now
     # Every integration step recorded: the table's per-aircraft separation and airspeeds
     # come from the recording (one episode's, a few MB at most).
     record_every = 1
@@ -314,7 +333,7 @@ def _fly(args: argparse.Namespace) -> int:
     info = policy.episode_info() if hasattr(policy, "episode_info") else {}
     label = Path(args.policy).stem if args.policy.lower().endswith(".zip") else args.policy
     label += "+shield" if args.shield else ""
-    settings = ", ".join(f"{key.replace('_', ' ')} {value}" for key, value in _policy_kwargs(args).items())
+    settings = ", ".join(f"{key.replace('_', ' ')} {value}" for key, value in _mpc_settings(args).items())
     print(fly_table(result, f"{label} ({settings})" if settings else label, config, info, compile_s,
                     wind_sigma_mps=args.wind_sigma))
     if args.summary_json:
@@ -359,6 +378,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         max_time_s=max_time_s,
         physics=args.physics,
         shield=args.shield,
+        shield_kwargs=_shield_kwargs(args),
     )
     records: list[dict[str, Any]] = []
     summary = evaluate(
@@ -504,6 +524,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as error:  # an output that cannot be written (e.g. reproduce --figures)
         print(f"atc-nf {command}: error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        # Ctrl-C is the user's own stop, not a failure to debug: one line, and the status a
+        # shell gives a command that SIGINT ended.
+        kept = _KEPT_ON_INTERRUPT.get(command or "")
+        print(f"atc-nf {command}: interrupted (Ctrl-C){'; ' + kept if kept else ''}", file=sys.stderr)
+        return INTERRUPTED_STATUS
+
+
+#: The exit status after Ctrl-C: 128 + SIGINT, as a shell reports a command it interrupted.
+INTERRUPTED_STATUS = 130
+#: What an interrupted subcommand kept, said on its one line.
+_KEPT_ON_INTERRUPT = {
+    "evaluate": "the runs finished so far are in --out, if given; the same command with --resume finishes the study",
+    "benchmark": "the runs finished so far are in --results-dir, if given; the same command resumes from there",
+}
 
 
 if __name__ == "__main__":

@@ -111,6 +111,9 @@ class Study:
     #: Fly the policy inside the safety filter (``atc_nf_env.shield.SafetyFilter`` with its
     #: defaults); its counts go to each run's ``policy_info`` and the summary's ``shield``.
     shield: bool = False
+    #: Keyword arguments of the safety filter (``shield`` only), e.g. ``{"mpc_settings":
+    #: {"extractions": 200}}`` for its MPC fallback; empty: its defaults.
+    shield_kwargs: dict[str, Any] = field(default_factory=dict)
 
     #: The scenario as flown, resolved once here (a file is read once: every run flies what
     #: the header identifies); None for a ``random-N`` name, drawn per run with its seed.
@@ -131,6 +134,10 @@ class Study:
                 object.__setattr__(self, name, value.item())
         if not isinstance(self.shield, bool):
             raise TypeError(f"shield = {self.shield!r}: must be True or False")
+        if not isinstance(self.shield_kwargs, dict):
+            raise TypeError(f"shield_kwargs = {self.shield_kwargs!r}: must be a dict of SafetyFilter's settings")
+        if self.shield_kwargs and not self.shield:
+            raise ValueError(f"shield_kwargs = {self.shield_kwargs!r}: set the safety filter's settings with shield=True")
         if not isinstance(self.policy_kwargs, dict):
             raise TypeError(f"policy_kwargs = {self.policy_kwargs!r}: must be a dict of the policy's settings")
         # A time limit off the integration grid is refused here, before any worker starts.
@@ -138,8 +145,10 @@ class Study:
         if self.airspeed_every_s is not None:
             whole_steps("airspeed_every_s", self.airspeed_every_s, SimConfig.preset(self.physics).dt_s)
         # Fail before any worker starts on a bad name or setting.
-        self.make_policy()
+        policy = self.make_policy()
         scenario = make_scenario(self.scenario, seed=0)
+        if isinstance(policy, SafetyFilter):
+            policy.fallback_for(scenario)  # its fallback's settings on this kind of scenario
         if draws_per_seed(self.scenario):
             identity = f"{self.scenario} per seed, seed 0 sha256:{scenario.content_sha256()}"
         else:
@@ -190,7 +199,7 @@ class Study:
     def make_policy(self) -> Policy:
         """The study's policy (inside the safety filter when ``shield``)."""
         policy = make_policy(self.policy, **self.policy_kwargs)
-        return SafetyFilter(policy) if self.shield else policy
+        return SafetyFilter(policy, **self.shield_kwargs) if self.shield else policy
 
     def header(self) -> dict[str, Any]:
         """The results file's first line: what the study is and, by content, what it flies.
@@ -213,6 +222,7 @@ class Study:
             "build": build.fingerprint(),
             # Only when on: the headers of unshielded studies stay as they were.
             **({"shield": True} if self.shield else {}),
+            **({"shield_kwargs": self.shield_kwargs} if self.shield_kwargs else {}),
         }
 
 
@@ -517,13 +527,18 @@ def _scan_results(path: Path, data: bytes | None = None) -> tuple[dict[str, Any]
     return header, runs, intact
 
 
-def read_results(path: Path) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
-    """(header, runs) of a results file; a last line damaged by an interruption is ignored.
+def read_results(path: str | os.PathLike[str]) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
+    """(header, runs) of a results file (a path as ``str`` or ``os.PathLike``); a last line
+    damaged by an interruption is ignored; (None, []) when the file does not exist.
 
     Raises:
+        TypeError: ``path`` is not a str or an ``os.PathLike`` of one.
         ValueError: on a damaged line before the last one, a file that does not start
             with a results header, or a seed written twice.
     """
+    if not isinstance(path, (str, os.PathLike)) or isinstance(os.fspath(path), bytes):
+        raise TypeError(f"path = {path!r}: give the results file's path as a str or an os.PathLike (pathlib.Path)")
+    path = Path(path)
     if not path.exists():
         return None, []
     header, runs, _ = _scan_results(path)
@@ -787,22 +802,6 @@ def _take_over(results: ResultsFile, header: dict[str, Any], resume: bool, first
     return {int(r["seed"]): r for r in old_runs if r["seed"] < first_seed + runs}
 
 
-def _check_same_study(
-    out: Path, old: dict[str, Any], new: dict[str, Any], seeds: list[int], first_seed: int, runs: int
-) -> None:
-    """Refuse to resume a file of another study, or of the same study from another first
-    seed: one file holds one range of seeds from one first seed, never two ranges."""
-    differing = differing_header_keys(old, new)
-    if differing:
-        described = ", ".join(f"{key} {_header_value(old, key)} there, {_header_value(new, key)} here"
-                              for key in differing[:3])
-        raise ValueError(f"{out} holds a different study ({described}); cannot resume it")
-    if seeds and not first_seed <= min(seeds) < first_seed + runs:
-        raise ValueError(
-            f"{out} holds the study from seed {min(seeds)}, not {first_seed}: resuming would mix two ranges of "
-            "seeds in one file; resume with the --seed the study was started with, or choose another file"
-        )
-
 def differing_header_keys(old: dict[str, Any], new: dict[str, Any],
                           ignore: Iterable[str] = LABEL_KEYS) -> list[str]:
     """The keys on which two results headers differ, looked up in both directions: a key
@@ -819,6 +818,22 @@ def _header_value(header: dict[str, Any], key: str) -> str:
     return repr(header[key]) if key in header else "missing"
 
 
+def _check_same_study(
+    out: Path, old: dict[str, Any], new: dict[str, Any], seeds: list[int], first_seed: int, runs: int
+) -> None:
+    """Refuse to resume a file of another study, or of the same study from another first
+    seed: one file holds one range of seeds from one first seed, never two ranges."""
+    differing = differing_header_keys(old, new)
+    if differing:
+        described = ", ".join(f"{key} {_header_value(old, key)} there, {_header_value(new, key)} here"
+                              for key in differing[:3])
+        raise ValueError(f"{out} holds a different study ({described}); cannot resume it")
+    if seeds and not first_seed <= min(seeds) < first_seed + runs:
+        raise ValueError(
+            f"{out} holds the study from seed {min(seeds)}, not {first_seed}: resuming would mix two ranges of "
+            "seeds in one file; resume with the --seed the study was started with, or choose another file"
+        )
+
 
 def summarize_records(records: list[dict[str, Any]]) -> dict[str, Any]:
     """The study summary from the results file's run records, in seed order: the
@@ -834,7 +849,7 @@ def summarize_records(records: list[dict[str, Any]]) -> dict[str, Any]:
     infos = [r.get("policy_info") or {} for r in records]
     if any("fallbacks" in info for info in infos):  # only policies that can fall back report it
         summary["fallbacks"] = int(sum(info.get("fallbacks", 0) for info in infos))
-    shield = summarize_interventions(infos)
+    shield = summarize_interventions(infos, records)
     if shield is not None:
         summary["shield"] = shield
     summary["decisions"] = int(decisions)

@@ -37,7 +37,8 @@ so it wraps the MCMC-MPC, the NF alone and trained agents alike (``atc-nf fly|ev
    decision takes tens;
 5. if no alternative is safe, applies the fallback policy's decision (``fallback="mpc"``,
    the default: the policy ``mpc`` of the registry, ``atc_nf_env.policy.make_policy``,
-   i.e. the MCMC-MPC, with the filter's wind estimate; or any policy object given as
+   i.e. the MCMC-MPC, with the filter's wind estimate; on a traffic stream in the
+   settings ``STREAM_FALLBACK_MPC_SETTINGS``, see there; or any policy object given as
    ``fallback``), or the alternative that stayed safe for the most integration steps
    (``fallback="least-bad"``).
 
@@ -100,6 +101,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from types import MappingProxyType
 from typing import Any, Callable, Union
 
 import numpy as np
@@ -120,7 +122,7 @@ from atc_nf_env.kernel import (
 )
 from atc_nf_env.policy import Policy, make_policy
 from atc_nf_env.proposals import PROPOSAL_FIELDS, WaypointProposal, homing_mixture_draws, inside_workspace
-from atc_nf_env.scenarios import Scenario
+from atc_nf_env.scenarios import Scenario, StreamScenario
 from atc_nf_env.shield_prediction import (
     NONE_SAFE,
     SCREEN_HOMED,
@@ -174,6 +176,15 @@ APPROACH_RADIUS_NM = 60.0
 APPROACH_TURN_RAD = math.radians(75.0)
 #: Waypoint sets of the sampled tier (each flown only until the first safe one).
 SAMPLED_ALTERNATIVES = 64
+#: The "mpc" fallback's settings on a traffic stream (``StreamScenario``), under those of
+#: ``mpc_settings``: each independent conflict cluster searched by a chain of its own, and
+#: the MPC's progress rule over 30 min (``baselines.MPCSettings``' fields). With the MPC's
+#: joint defaults, nf-leg and deepsets_mixed inside the filter left the envelope on
+#: stream-30 in every run tried (the joint sampler finds no feasible candidate among tens
+#: of aircraft); these settings are the fallback of BENCHMARKS.md's "Shielded policies on
+#: traffic streams" (``bench/mpc_dense_study.py``'s "per-cluster"), none outside there.
+STREAM_FALLBACK_MPC_SETTINGS = MappingProxyType({"sampling": "per-cluster", "progress_fraction": 0.5,
+                                                 "progress_periods": 6})
 #: Tag of the sampled tier's random stream (the episode's seed is the other part).
 _SAMPLE_STREAM = 0x5348
 
@@ -204,10 +215,13 @@ class SafetyFilter:
         recovery_angle_rad: a homing waypoint turns at most this far from the heading, rad
             (a waypoint behind the aircraft commands a reverse airspeed).
         period_s: the decision period T, s.
-        mpc_settings: settings of the "mpc" fallback (``MPCSettings`` field names); the
-            proposal's fields among them (``atc_nf_env.proposals.PROPOSAL_FIELDS``) also
-            shape the sampled tier, whatever the fallback. With another fallback, only
-            those fields are allowed.
+        mpc_settings: settings of the "mpc" fallback (``MPCSettings`` field names), each
+            over the fallback's defaults: the MPC's own on an encounter, and
+            ``STREAM_FALLBACK_MPC_SETTINGS`` on a traffic stream (give ``sampling="joint",
+            progress_fraction=None`` to fly the joint MPC there); the proposal's fields
+            among them (``atc_nf_env.proposals.PROPOSAL_FIELDS``) also shape the sampled
+            tier, whatever the fallback. With another fallback, only those fields are
+            allowed.
         progress_fraction: the progress rule (see the module's docstring): over every
             window of ``progress_periods`` periods a flying aircraft must close this
             fraction of what a direct flight at 454 kt covers in the window (or arrive, if
@@ -265,6 +279,10 @@ class SafetyFilter:
         self.mpc_settings = dict(mpc_settings or {})
         # The fallback first: the registry's "mpc" checks every one of mpc_settings' fields.
         self._fallback_policy = self._make_fallback(fallback)
+        #: The "mpc" fallbacks built so far, by whether they fly a traffic stream.
+        self._mpc_fallbacks: dict[bool, Policy] = {}
+        if isinstance(fallback, str) and fallback == "mpc":
+            self._mpc_fallbacks[False] = self._fallback_policy
         self.fallback = fallback if isinstance(fallback, str) else "policy"
         # The sampled tier draws from the MCMC-MPC's proposal distribution.
         proposal_settings = {k: v for k, v in self.mpc_settings.items() if k in PROPOSAL_FIELDS}
@@ -316,9 +334,39 @@ class SafetyFilter:
             )
         return made
 
+    def fallback_mpc_settings(self, scenario: Scenario) -> dict[str, Any] | None:
+        """The settings (``MPCSettings`` fields over its defaults) of the "mpc" fallback on
+        ``scenario``: ``mpc_settings`` over ``STREAM_FALLBACK_MPC_SETTINGS`` on a traffic
+        stream, ``mpc_settings`` on an encounter; None with another fallback."""
+        if not self._mpc_fallbacks:
+            return None
+        if isinstance(scenario, StreamScenario):
+            return {**STREAM_FALLBACK_MPC_SETTINGS, **self.mpc_settings}
+        return dict(self.mpc_settings)
+
+    def fallback_for(self, scenario: Scenario) -> Policy | None:
+        """The fallback policy that ``scenario`` is flown with (None for "least-bad"): the
+        "mpc" fallback in ``fallback_mpc_settings(scenario)``, built the first time it is
+        needed. ValueError when ``mpc_settings`` do not go with the stream's settings."""
+        if not self._mpc_fallbacks:
+            return self._fallback_policy
+        stream = isinstance(scenario, StreamScenario)
+        if stream not in self._mpc_fallbacks:
+            settings = self.fallback_mpc_settings(scenario)
+            try:
+                self._mpc_fallbacks[stream] = make_policy("mpc", **settings)
+            except ValueError as error:
+                raise ValueError(
+                    f"mpc_settings = {self.mpc_settings!r}: on a traffic stream the MPC fallback flies them over "
+                    f"{dict(STREAM_FALLBACK_MPC_SETTINGS)!r} ({error}); give the stream's settings explicitly, "
+                    "e.g. sampling='joint', progress_fraction=None"
+                ) from None
+        return self._mpc_fallbacks[stream]
+
     # -- Policy interface -------------------------------------------------------------
     def reset(self, scenario: Scenario, config: SimConfig, seed: int | None = None) -> None:
         """Reset the wrapped policy (and the fallback policy) for a new episode."""
+        self._fallback_policy = self.fallback_for(scenario)
         self.policy.reset(scenario, config, seed)
         if self._fallback_policy is not None:
             self._fallback_policy.reset(scenario, config, seed)
@@ -622,23 +670,50 @@ def _is_policy(candidate: Any) -> bool:
     return callable(getattr(candidate, "act", None)) and callable(getattr(candidate, "reset", None))
 
 
-def summarize_interventions(infos: list[dict[str, Any]]) -> dict[str, Any] | None:
+def summarize_interventions(
+    infos: list[dict[str, Any]], records: list[dict[str, Any]] | None = None
+) -> dict[str, Any] | None:
     """The filter's counts over runs (their ``episode_info()``): totals, the runs with any
-    change, and the share of decisions changed; None when no run was shielded."""
+    change, and the share of decisions changed; None when no run was shielded. With the
+    runs' ``records`` (the results file's run lines, whose ``policy_info`` are ``infos``),
+    also the runs that breached anyway (``breached_runs``)."""
     shielded = [info for info in infos if "shield_decisions" in info]
     if not shielded:
         return None
     # .get: runs recorded before a count existed lack its key.
     totals = {key.removeprefix("shield_"): int(sum(info.get(key, 0) for info in shielded)) for key in SHIELD_INFO_KEYS}
     decisions = totals["decisions"]
-    return {
+    summary = {
         **totals,
         "runs": len(shielded),
         "runs_filtered": int(sum(info["shield_filtered"] > 0 for info in shielded)),
         "runs_with_mpc_fallback": int(sum(info["shield_mpc_fallbacks"] > 0 for info in shielded)),
         "filtered_fraction": totals["filtered"] / decisions if decisions else 0.0,
     }
+    if records is not None:
+        summary.update(breached_runs([r for r in records if "shield_decisions" in (r.get("policy_info") or {})]))
+    return summary
 
 
-__all__ = ["ALTERNATIVE_KINDS", "FALLBACKS", "Fallback", "SAMPLED_ALTERNATIVES", "SHIELD_INFO_KEYS", "SafetyFilter",
-           "summarize_interventions"]
+def breached_runs(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Of shielded runs (run records of a results file), those that breached although
+    filtered (``runs_breached``: an integration step outside [366, 540] kt, even one step
+    a fraction of a knot out, or a loss of separation; the predicates of the summary's
+    ``runs_with_envelope_violation`` and ``runs_with_los``), how many of them had the filter
+    apply a decision its own prediction found unsafe (``runs_breached_after_unresolved``:
+    ``shield_unresolved`` > 0), and the range of such decisions per breached run
+    (``unresolved_per_breached_run``, None without a breached run): whether the breaches
+    are the filter's known give-ups or escaped its prediction (the wind estimate off by
+    more than the envelope margin)."""
+    breached = [r for r in records if r["envelope_violation_fraction"] > 0 or r["los_count"] > 0]
+    unresolved = [int((r.get("policy_info") or {}).get("shield_unresolved", 0)) for r in breached]
+    given_up = [u for u in unresolved if u > 0]
+    return {
+        "runs_breached": len(breached),
+        "runs_breached_after_unresolved": len(given_up),
+        "unresolved_per_breached_run": [min(unresolved), max(unresolved)] if unresolved else None,
+    }
+
+
+__all__ = ["ALTERNATIVE_KINDS", "FALLBACKS", "Fallback", "SAMPLED_ALTERNATIVES", "SHIELD_INFO_KEYS",
+           "STREAM_FALLBACK_MPC_SETTINGS", "SafetyFilter", "breached_runs", "summarize_interventions"]

@@ -207,7 +207,10 @@ The controller never sees the true wind. Its prediction wind model is configurab
 from N(0, σ²) per component) or ``"estimated"`` (a constant wind estimated from the
 observed drift: after each period the difference between where the aircraft are and
 where the controller predicted the applied candidate would put them, divided by T,
-corrects the estimate).
+corrects the estimate). The prediction compared with always covers the whole period: a
+fallback that breaks a constraint in its first period, whose prediction stopped at the
+breach, is predicted again for the whole period without stopping
+(``MCMCMPC._whole_first_period`` says why it is re-flown, not skipped).
 
 Fallback: when no candidate is feasible, the controller applies the candidate that
 stayed feasible longest (the most integration steps, or sampling instants, before its
@@ -228,7 +231,8 @@ import numpy as np
 from numba import njit
 
 from atc_nf_env import kernel, nf
-from atc_nf_env.config import SimConfig
+from atc_nf_env.config import BATCH_MEMORY_BYTES, SimConfig, check_batch_size, max_batch_worlds, world_memory_bytes
+from atc_nf_env.episode import MAX_TIME_LIMIT_S
 from atc_nf_env.kernel import (
     ABSENT,
     ARRIVED,
@@ -266,6 +270,11 @@ HOMING_FIRST_DECISION_MARGIN_KT = 10.0
 #: Costs are floored here (nm) so that a candidate that brings everyone home (cost 0)
 #: still has a finite log-cost in the chain.
 _COST_FLOOR_NM = 1e-9
+
+#: Largest K: the candidates of one decision are worlds flown in one kernel call, so K of
+#: them within ``atc_nf_env.config.BATCH_MEMORY_BYTES`` at one aircraft (about 2 million;
+#: ``reset`` checks K against the scenario's own aircraft count).
+MAX_EXTRACTIONS: int = max_batch_worlds(1)
 
 
 @dataclass(frozen=True)
@@ -381,9 +390,14 @@ class MPCSettings:
     approach_angle_rad: float | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.extractions, (int, np.integer)) or self.extractions < 1:
-            raise ValueError(f"extractions (K) = {self.extractions!r}: must be an integer >= 1")
-        if not isinstance(self.horizon, (int, np.integer)) or self.horizon < 1:
+        if isinstance(self.extractions, bool) or not isinstance(self.extractions, (int, np.integer)) \
+                or not 1 <= self.extractions <= MAX_EXTRACTIONS:
+            raise ValueError(
+                f"extractions (K) = {self.extractions!r}: must be an integer in [1, {MAX_EXTRACTIONS}] (K candidate "
+                f"worlds of even one aircraft hold {world_memory_bytes(1)} bytes each; the bound keeps them within "
+                f"{BATCH_MEMORY_BYTES / 2**30:g} GiB)"
+            )
+        if isinstance(self.horizon, bool) or not isinstance(self.horizon, (int, np.integer)) or self.horizon < 1:
             raise ValueError(f"horizon (N) = {self.horizon!r}: must be an integer >= 1")
         for name in (
             "period_s", "distance_mean_nm", "distance_std_nm", "angle_range_rad", "cost_exponent", "home_distance_nm",
@@ -392,6 +406,12 @@ class MPCSettings:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} = {value!r}: must be a finite number > 0")
+        if self.horizon * self.period_s > MAX_TIME_LIMIT_S * (1 + 1e-12):
+            raise ValueError(
+                f"horizon (N) = {self.horizon} periods of {self.period_s:g} s: a prediction of "
+                f"{self.horizon * self.period_s / 3600:g} h, longer than any flight ({MAX_TIME_LIMIT_S / 3600:g} h); "
+                f"allowed: N <= {int(MAX_TIME_LIMIT_S // self.period_s)} at T = {self.period_s:g} s"
+            )
         if not isinstance(self.search_rounds, (int, np.integer)) or self.search_rounds < 0:
             raise ValueError(f"search_rounds = {self.search_rounds!r}: must be an integer >= 0")
         if not (isinstance(self.recovery_fraction, (int, float)) and 0.0 <= self.recovery_fraction <= 1.0):
@@ -593,6 +613,7 @@ class MCMCMPC:
         """Seed the controller and prepare its prediction model for ``scenario``."""
         if config.dt_s <= 0 or kernel.steps_for(self.settings.period_s, config.dt_s) < 1:
             raise ValueError(f"period_s = {self.settings.period_s}: must be >= one integration step")
+        check_batch_size(self.settings.extractions, scenario.n_aircraft, "MPC extractions (K)")
         self._rng = np.random.default_rng([0 if seed is None else seed, 0x4D5043])
         if self.settings.search == "lazy":
             _load_compiled_chain()  # numba's compilation (or cache load) outside act's time
@@ -669,7 +690,11 @@ class MCMCMPC:
         )
         waypoints = view.waypoints.copy()
         waypoints[flying] = result.applied[flying]
-        self._predicted_positions = result.applied_after_first.copy()
+        predicted = result.applied_after_first
+        if result.breach_predicted and s.wind_model == "estimated" and s.constraint_check == "every-step":
+            # That prediction stopped at its breach; the aircraft fly the whole period.
+            predicted = self._whole_first_period(view, result.applied)
+        self._predicted_positions = predicted.copy()
         self._predicted_flying = flying.copy()
         self._predicted_time_s = view.time_s + s.period_s
         return waypoints
@@ -1048,6 +1073,26 @@ class MCMCMPC:
             flown_waypoints = flown_waypoints + (states[:, :, S_X : S_Y + 1] - before)
         assert after_first is not None
         return np.zeros(view.state.shape[0], dtype=bool), after_first, float(self._cost(view.state, states)[0])
+
+    def _whole_first_period(self, view: WorldView, waypoints: np.ndarray) -> np.ndarray:
+        """The positions (N, 2) nm after one whole period of ``waypoints`` (N, 2) nm flown
+        from ``view`` under the prediction (its wind, its envelope) without stopping at a
+        violation: what the "estimated" wind model compares the aircraft's positions with.
+
+        Why re-fly: a candidate's prediction stops at its first violation
+        (``constraint_check="every-step"``), so a fallback that breaks a constraint in its
+        first period has no prediction of where the period ends, and the rest of the
+        period would be read as drift (two aircraft side by side 6 nm apart: a 545-kt
+        estimate of a 21-kt wind). Skipping the update instead would keep the old
+        estimate (at an episode's start, still air) for another period, in the conflict
+        that made every candidate fail. The real aircraft fly the applied waypoints for the
+        whole period, so one more world-period of the kernel gives the prediction to
+        compare with."""
+        assert self._survey_params is not None
+        states, flown_waypoints = _candidate_starts(view.state, waypoints[None])
+        _advance_candidates(states, flown_waypoints, self._prediction_wind_of_one(), self.settings.period_s,
+                            self._survey_params, self._start_scratch)
+        return states[0, :, S_X : S_Y + 1].copy()
 
     def _involved(self, state: np.ndarray, trace: kernel.Trace) -> np.ndarray:
         """(N,) bool: the aircraft of one world (N, N_STATE) that broke a constraint in the

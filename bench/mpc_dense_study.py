@@ -50,7 +50,10 @@ from typing import Callable
 
 import numpy as np
 
-_PER_CLUSTER = {"sampling": "per-cluster", "progress_fraction": 0.5, "progress_periods": 6}
+from atc_nf_env.shield import STREAM_FALLBACK_MPC_SETTINGS
+
+#: The safety filter's fallback on streams flies these by default.
+_PER_CLUSTER = dict(STREAM_FALLBACK_MPC_SETTINGS)
 #: The settings compared, by name: keyword arguments of ``baselines.MCMCMPC``.
 SETTINGS = {
     "joint": {},
@@ -123,7 +126,9 @@ def _shielded(proposer: str, setting: str):
         inner = SB3AgentPolicy(Path(proposer), outside_range="ignore")
     else:
         inner = make_policy(proposer)
-    return SafetyFilter(inner, mpc_settings=dict(SETTINGS[setting]))
+    # On a stream the filter's fallback flies its settings over STREAM_FALLBACK_MPC_SETTINGS:
+    # a setting that does not name the sampling and the progress rule ("joint") names them.
+    return SafetyFilter(inner, mpc_settings={"sampling": "joint", "progress_fraction": None, **SETTINGS[setting]})
 
 
 def fly_stream(setting: str, stream_name: str, seed: int, proposer: str = "") -> dict:

@@ -152,7 +152,7 @@ def test_angle_options_reach_the_mpc_in_radians_and_bad_angles_are_refused(capsy
         assert main(["fly", "--policy", "mpc", option, bad]) == 2, bad
         assert option in capsys.readouterr().err, bad
     assert main(["fly", "--policy", "nf", option, "70"]) == 2
-    assert f"{option} applies to --policy mpc only" in capsys.readouterr().err
+    assert f"{option} applies to --policy mpc, or with --shield" in capsys.readouterr().err
 
 
 def test_ray_backend_on_a_local_cluster():
