@@ -64,6 +64,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from agents.compiled_forward import IDENTITY, SQUASH, TANH, mlp_actions, pack_layers, widest
+from agents.policy import OperatingRangeCheck, checked_outside_range, torch_load_error
 from atc_nf_env.benchmark import SPLITS, get_task
 from atc_nf_env.config import SimConfig
 from atc_nf_env.envs import EnvConfig
@@ -442,46 +443,151 @@ def _check_saved_policy(path: Path, actor: Any, env: Any) -> None:
 
 
 _ACTIVATIONS = {"identity": IDENTITY, "tanh": TANH}
+#: The output squashing a saved policy may name (its deterministic action is tanh(loc)).
+_OUTPUTS = ("tanh",)
+#: The most layers, and units per layer, a saved policy may have.
+MAX_LAYERS = 64
+MAX_UNITS = 4096
 
 
-class TorchRLPolicy:
+def _required(path: Path, mapping: dict[str, Any], key: str, where: str = "") -> Any:
+    if key not in mapping:
+        raise ValueError(f"{path}: the policy file lacks {where}{key!r}; a policy.pt written by "
+                         f"agents.marl_torchrl.train has format, algorithm, task, layers, output and env")
+    return mapping[key]
+
+
+def _checked_layers(path: Path, saved: dict[str, Any]) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """The actor's layers [(W^T (in, out) float32, b (out,) float32, activation code)] of a
+    policy file, each checked: 2-D weights and 1-D biases of finite floats, widths that
+    chain from one layer to the next and end in the 2 action values, a known activation.
+
+    Raises:
+        ValueError: naming the file and the layer and field that is missing or wrong.
+    """
+    import torch
+
+    layers = _required(path, saved, "layers")
+    if not isinstance(layers, list) or not 1 <= len(layers) <= MAX_LAYERS:
+        raise ValueError(f"{path}: its 'layers' = {type(layers).__name__} of length {_length(layers)}: must be a "
+                         f"list of 1 to {MAX_LAYERS} layers")
+    checked = []
+    for index, layer in enumerate(layers):
+        where = f"layers[{index}]"
+        if not isinstance(layer, dict):
+            raise ValueError(f"{path}: its {where} is a {type(layer).__name__}: must be a dict with weight, bias "
+                             "and activation")
+        weight, bias, activation = (_required(path, layer, key, f"{where}.") for key in ("weight", "bias",
+                                                                                          "activation"))
+        if not (isinstance(weight, torch.Tensor) and weight.ndim == 2 and weight.is_floating_point()
+                and 1 <= min(weight.shape) and max(weight.shape) <= MAX_UNITS):
+            raise ValueError(f"{path}: its {where}.weight = {_describe(weight)}: must be a 2-D float tensor "
+                             f"(out, in) of 1 to {MAX_UNITS} units each")
+        if not (isinstance(bias, torch.Tensor) and bias.ndim == 1 and bias.is_floating_point()
+                and bias.shape[0] == weight.shape[0]):
+            raise ValueError(f"{path}: its {where}.bias = {_describe(bias)}: must be a 1-D float tensor of "
+                             f"{weight.shape[0]} values (the weight's rows)")
+        if not (bool(torch.isfinite(weight).all()) and bool(torch.isfinite(bias).all())):
+            raise ValueError(f"{path}: its {where} holds NaN or inf; every weight must be finite")
+        if not isinstance(activation, str) or activation not in _ACTIVATIONS:
+            raise ValueError(f"{path}: its {where}.activation = {activation!r:.40}: allowed: "
+                             f"{', '.join(_ACTIVATIONS)}")
+        if checked and weight.shape[1] != checked[-1][0].shape[1]:
+            raise ValueError(f"{path}: its {where}.weight takes {weight.shape[1]} inputs, but layers[{index - 1}] "
+                             f"gives {checked[-1][0].shape[1]}")
+        checked.append((weight.detach().to(torch.float32).numpy().T.copy(),
+                        bias.detach().to(torch.float32).numpy().copy(), _ACTIVATIONS[activation]))
+    if checked[-1][0].shape[1] != 2:
+        raise ValueError(f"{path}: its last layer gives {checked[-1][0].shape[1]} values; the action has 2")
+    return checked
+
+
+def _length(value: Any) -> str:
+    return str(len(value)) if isinstance(value, (list, tuple, dict, str)) else "-"
+
+
+def _describe(value: Any) -> str:
+    import torch
+
+    if isinstance(value, torch.Tensor):
+        return f"a {value.dtype} tensor of shape {tuple(value.shape)}"
+    return f"{value!r:.40}"
+
+
+class TorchRLPolicy(OperatingRangeCheck):
     """A ``policy.pt`` written by ``train`` as an ``atc_nf_env.policy.Policy``: every flying
     aircraft's ego observation (the envs' own code) through the shared actor, its
     deterministic action tanh(loc) mapped to a waypoint with the envs' action mapping.
-    Needs only torch (to read the file); the forward pass is the compiled MLP of
-    ``agents.compiled_forward``. Units: waypoints in nm.
+    Needs only torch (to read the file, ``weights_only=True``: tensors and plain values,
+    nothing unpickled); the forward pass is the compiled MLP of ``agents.compiled_forward``.
+    Units: waypoints in nm.
+
+    Args:
+        path: the ``policy.pt``.
+        outside_range: "warn" (once per model and process), "refuse" (ValueError) or
+            "ignore", when an episode's number of aircraft or wind sigma is not its training
+            task's (as ``agents.policy.SB3AgentPolicy``).
 
     Raises:
-        ValueError: the file is missing or is not a policy written by ``train``.
+        ValueError: the file is missing, is not a policy written by ``train``, or lacks
+            (or holds a wrong) field, named in the message.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, outside_range: str = "warn") -> None:
         import torch
 
+        self.outside_range = checked_outside_range(outside_range)
         self.path = Path(path)
         if not self.path.is_file():
             raise ValueError(f"policy file {str(self.path)!r} does not exist; give the policy.pt that "
                              "agents.marl_torchrl.train wrote")
         try:
             saved = torch.load(self.path, map_location="cpu", weights_only=True)
-        except Exception as error:  # a damaged file or another kind of .pt
+        except Exception as error:  # a damaged file, another kind of .pt, or one that needs unpickling
             raise ValueError(f"{self.path}: not a policy written by agents.marl_torchrl.train "
-                             f"({type(error).__name__}: {error})") from None
+                             f"({torch_load_error(error)})") from None
         if not isinstance(saved, dict) or saved.get("format") != POLICY_FORMAT:
             raise ValueError(f"{self.path}: not a policy written by agents.marl_torchrl.train (no format "
                              f"{POLICY_FORMAT!r})")
         self.meta = {key: value for key, value in saved.items() if key not in ("layers", "actor_state_dict")}
-        self.name = f"{saved['algorithm']}-{self.path.parent.name or self.path.stem}"
-        env = saved["env"]
-        self.mapping = ActionMapping.coerce(env["action_mapping"])
-        self.n_neighbours = int(env["n_neighbours"])
-        limit = EnvConfig(max_episode_minutes=float(env["max_episode_minutes"]))
+        algorithm = _required(self.path, saved, "algorithm")
+        if algorithm not in ALGORITHMS:
+            raise ValueError(f"{self.path}: its algorithm = {algorithm!r:.40}: allowed: {', '.join(ALGORITHMS)}")
+        self.name = f"{algorithm}-{self.path.parent.name or self.path.stem}"
+        output = _required(self.path, saved, "output")
+        if output not in _OUTPUTS:
+            raise ValueError(f"{self.path}: its output = {output!r:.40}: allowed: {', '.join(_OUTPUTS)}")
+        task_name = _required(self.path, saved, "task")
+        try:
+            task = get_task(task_name)
+        except ValueError as error:
+            raise ValueError(f"{self.path}: its {error}") from None
+        env = _required(self.path, saved, "env")
+        if not isinstance(env, dict):
+            raise ValueError(f"{self.path}: its env = {env!r:.40}: must be a dict with n_neighbours, "
+                             "max_episode_minutes and action_mapping")
+        n_neighbours, minutes, mapping = (_required(self.path, env, key, "env.")
+                                          for key in ("n_neighbours", "max_episode_minutes", "action_mapping"))
+        if isinstance(n_neighbours, bool) or not isinstance(n_neighbours, int) or not 0 <= n_neighbours <= MAX_UNITS:
+            raise ValueError(f"{self.path}: its env.n_neighbours = {n_neighbours!r:.40}: must be an integer in "
+                             f"[0, {MAX_UNITS}]")
+        try:
+            self.mapping = ActionMapping.coerce(mapping)
+            limit = EnvConfig(max_episode_minutes=minutes)
+        except Exception as error:  # the settings' own checks, on values of any type the file holds
+            raise ValueError(f"{self.path}: its env: {type(error).__name__}: {error}") from None
+        self.n_neighbours = n_neighbours
         self.time_limit_s = limit.max_decisions * DECISION_PERIOD_S
-        layers = [(layer["weight"].numpy().T.copy(), layer["bias"].numpy().copy(), _ACTIVATIONS[layer["activation"]])
-                  for layer in saved["layers"]]
+        layers = _checked_layers(self.path, saved)
         self.obs_dim = int(layers[0][0].shape[0])
         if self.obs_dim != ObservationSpec(n_neighbours=self.n_neighbours).dim:
             raise ValueError(f"{self.path}: input size {self.obs_dim} does not fit K = {self.n_neighbours} neighbours")
+        from atc_nf_env.scenarios import make_scenario
+
+        n_aircraft = make_scenario(task.scenario, seed=0).n_aircraft
+        self.operating_range = {"n_aircraft": [n_aircraft, n_aircraft],
+                                "wind_sigma_mps": [task.wind_sigma_mps, task.wind_sigma_mps]}
+        self.range_source = f"it was trained on task {task_name!r} alone"
         self._weights, self._layout = pack_layers(layers)
         width = widest(self._layout)
         self._buf_a, self._buf_b = np.zeros(width, np.float32), np.zeros(width, np.float32)

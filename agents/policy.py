@@ -31,11 +31,25 @@ Model metadata. Our scripts save, inside the model's zip (SB3's ``include``), an
 was trained with (observation neighbours K, time limit, action mapping, number of slots
 for centralized models), plus how it was trained. A zip without it is read as a
 parameter-shared PPO model on the default environment settings.
+
+Loading without unpickling. SB3's own loader (``PPO.load``) unpickles every value of a
+zip's ``data`` that SB3 stored with cloudpickle, so a hostile zip runs code when it is
+opened. ``load_model`` and ``read_meta`` read ``data`` as plain JSON and never decode a
+pickled value (``PickledValue`` keeps only the plain text SB3 writes beside it): the policy
+class, its settings (``policy_kwargs``) and its spaces are rebuilt from plain fields, from
+the classes this project flies and from the environments' own spaces, and the weights are
+read from ``policy.pth`` with ``torch.load(weights_only=True)``. The shipped models load
+bit for bit as ``PPO.load`` loads them (``tests/test_reliability_round4_model_files.py``).
 """
 
 from __future__ import annotations
 
+import io
+import json
+import math
+import re
 import warnings
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -96,7 +110,7 @@ def env_meta(cfg: EnvConfig, n_slots: int | None = None) -> dict[str, Any]:
 
 def read_meta(path: str | Path) -> dict[str, Any]:
     """The ``atc_nf_meta`` of a saved model (``default_meta()`` where it has none)."""
-    return _meta_of(_saved_data(path))
+    return _meta_of(_saved_data(path), path)
 
 
 #: What ``SB3AgentPolicy`` flies: SB3 policy classes by the algorithm that saves them.
@@ -105,41 +119,204 @@ _ACCEPTED = ("a PPO model (ActorCriticPolicy) or a SAC model (SACPolicy) saved b
              "`atc-nf imitate` (shipped models: agents/models/*.zip)")
 
 
+#: Bounds on a model zip's entries once decompressed, bytes: a hostile zip must not inflate
+#: into memory without limit (the shipped models' ``data`` is < 40 kB, ``policy.pth`` < 200 kB).
+MAX_DATA_BYTES = 16 * 2**20
+MAX_WEIGHTS_BYTES = 256 * 2**20
+#: The entry of a model zip with the policy's weights: a state dict of tensors.
+WEIGHTS_ENTRY = "policy.pth"
+#: Bounds on the settings a zip states: observed neighbours K and aircraft slots.
+MAX_NEIGHBOURS = 1024
+MAX_SLOTS = 1024
+
+
+@dataclass(frozen=True)
+class PickledValue:
+    """A value of a model zip's ``data`` that SB3 saved as a cloudpickle payload (a dict
+    with a ``":serialized:"`` key). It is never unpickled: only the plain-text description
+    SB3 writes beside the payload is kept (attribute name -> JSON value or its ``str``)."""
+
+    description: dict[str, Any]
+
+
+@dataclass
+class LoadedModel:
+    """What flying needs of a saved SB3 model: its policy network (CPU, evaluation mode)
+    and the observation and action spaces it was built for. ``predict`` is SB3's
+    ``BaseAlgorithm.predict``: the policy's ``predict``."""
+
+    policy: Any
+    observation_space: Any
+    action_space: Any
+
+    def predict(self, observation: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
+        """(actions, None) of ``observation``, as ``PPO.predict`` / ``SAC.predict`` give them."""
+        return self.policy.predict(observation, deterministic=deterministic)
+
+
+def _read_entry(archive: zipfile.ZipFile, name: str, limit: int) -> bytes | None:
+    """The bytes of entry ``name`` (None if the zip has none), refused above ``limit``."""
+    if name not in archive.namelist():
+        return None
+    size = archive.getinfo(name).file_size
+    if size > limit:
+        raise ValueError(f"its {name!r} entry holds {size} bytes; at most {limit} are read")
+    with archive.open(name) as entry:
+        content = entry.read(limit + 1)
+    if len(content) > limit:
+        raise ValueError(f"its {name!r} entry inflates past {limit} bytes")
+    return content
+
+
+def torch_load_error(error: Exception) -> str:
+    """One line on why ``torch.load(weights_only=True)`` refused a file: the unpickler's
+    reason (e.g. "Unsupported global: GLOBAL builtins.exec") rather than torch's advice to
+    load it unrestricted, which would run the code a hostile file holds."""
+    lines = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip() for line in str(error).splitlines()]
+    reason = next((line for line in lines if "WeightsUnpickler error" in line), None)
+    reason = (reason or next((line for line in lines if line), "")).split(". Please use")[0]
+    return f"{type(error).__name__}: {reason:.200}"
+
+
 def _saved_data(path: str | Path) -> dict[str, Any]:
-    """The ``data`` entry of an SB3 zip (its class, spaces, settings and our metadata).
+    """The ``data`` entry of an SB3 zip (its class, spaces, settings and our metadata), read
+    as plain JSON: every value SB3 pickled is a ``PickledValue``, never unpickled.
 
     Raises:
         ValueError: the file is not a zip, is cut off, or holds no SB3 ``data`` entry.
     """
-    from stable_baselines3.common.save_util import load_from_zip_file
-
     try:
-        data, _, _ = load_from_zip_file(str(path), device="cpu", load_data=True, print_system_info=False)
-    except Exception as error:  # zipfile, json and pickle errors of a damaged or foreign file
+        with zipfile.ZipFile(path) as archive:
+            content = _read_entry(archive, "data", MAX_DATA_BYTES)
+        data = None if content is None else json.loads(content.decode("utf-8"))
+    except Exception as error:  # zipfile, UTF-8 and JSON errors of a damaged or foreign file
         raise ValueError(f"{path}: not a Stable-Baselines3 model, or a damaged one ({type(error).__name__}: {error}); "
                          f"accepted: {_ACCEPTED}") from None
     if not isinstance(data, dict) or not data:
         raise ValueError(f"{path}: a zip without a Stable-Baselines3 'data' entry (cut off, or another kind of "
                          f"zip); accepted: {_ACCEPTED}")
-    return data
+    return {key: PickledValue({k: v for k, v in value.items() if k != ":serialized:"})
+            if isinstance(value, dict) and ":serialized:" in value else value for key, value in data.items()}
 
 
-def _meta_of(data: dict[str, Any]) -> dict[str, Any]:
+def _meta_of(data: dict[str, Any], path: str | Path) -> dict[str, Any]:
     meta = default_meta()
-    saved = (data or {}).get(META_KEY)
+    saved = data.get(META_KEY)
+    if isinstance(saved, PickledValue):
+        raise ValueError(f"{path}: its {META_KEY} is a pickled object, which is never unpickled here; "
+                         f"`atc-nf train` and `atc-nf imitate` save it as plain JSON")
     if isinstance(saved, dict):
-        env = {**meta["env"], **saved.get("env", {})}
-        meta = {**meta, **saved, "env": env}
+        env = saved.get("env", {})
+        if not isinstance(env, dict):
+            raise ValueError(f"{path}: its {META_KEY}['env'] = {env!r:.80}: must be a dict of the environment "
+                             f"settings ({', '.join(meta['env'])})")
+        meta = {**meta, **saved, "env": {**meta["env"], **env}}
     return meta
+
+
+#: The SB3 policy classes flown here, by their module and name, and the algorithm saving each.
+_POLICY_ALGOS = {"stable_baselines3.common.policies.ActorCriticPolicy": "ppo",
+                 "stable_baselines3.sac.policies.SACPolicy": "sac"}
+
+
+def _class_name(value: Any) -> str | None:
+    """``module.Name`` of a class SB3 pickled, from the plain description beside the
+    payload (its ``__module__`` and the name in its ``__init__``'s text); None if unreadable."""
+    if not isinstance(value, PickledValue):
+        return None
+    module, init = value.description.get("__module__"), value.description.get("__init__")
+    found = re.fullmatch(r"<function (\w+)\.__init__ at 0x[0-9a-fA-F]+>", init) if isinstance(init, str) else None
+    return f"{module}.{found.group(1)}" if isinstance(module, str) and found else None
+
+
+def _classes() -> dict[str, dict[str, Any]]:
+    """The classes a policy's settings may name ("activation": ``activation_fn``,
+    "extractor": ``features_extractor_class``), by the text SB3 writes for each."""
+    from stable_baselines3.common.torch_layers import FlattenExtractor
+    from torch import nn
+
+    from agents.deepsets import NeighbourSetExtractor
+
+    def by_text(classes: list[type]) -> dict[str, type]:
+        return {f"<class '{cls.__module__}.{cls.__qualname__}'>": cls for cls in classes}
+
+    return {"activation": by_text([nn.Tanh, nn.ReLU, nn.ELU, nn.LeakyReLU, nn.SiLU, nn.GELU]),
+            "extractor": by_text([FlattenExtractor, NeighbourSetExtractor])}
+
+
+#: Settings of each policy class a zip may hold (``policy_kwargs``), and the kind of each.
+_SETTINGS: dict[str, dict[str, str]] = {
+    "ppo": {"net_arch": "arch", "activation_fn": "activation", "ortho_init": "bool", "log_std_init": "number",
+            "full_std": "bool", "use_expln": "bool", "squash_output": "bool", "features_extractor_class":
+            "extractor", "features_extractor_kwargs": "dict", "share_features_extractor": "bool",
+            "normalize_images": "bool"},
+    "sac": {"net_arch": "arch", "activation_fn": "activation", "use_sde": "bool", "log_std_init": "number",
+            "use_expln": "bool", "clip_mean": "number", "features_extractor_class": "extractor",
+            "features_extractor_kwargs": "dict", "normalize_images": "bool", "n_critics": "count",
+            "share_features_extractor": "bool"},
+}
+#: Settings that only shape training (the optimizer): not needed to fly, so not read.
+_TRAINING_ONLY = ("optimizer_class", "optimizer_kwargs", "device")
+
+
+def _widths(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in value)
+
+
+def _policy_settings(path: Path, value: Any, algo: str) -> dict[str, Any]:
+    """The ``policy_kwargs`` of a zip, rebuilt from plain values and the classes of ``_classes``.
+
+    Raises:
+        ValueError: a setting is unknown, of the wrong kind, or names a class not flown here.
+    """
+    if isinstance(value, PickledValue):
+        if value.description.get(":type:") != "<class 'dict'>":
+            raise ValueError(f"{path}: its policy_kwargs is not a dict ({value.description.get(':type:')!r:.80})")
+        value = {k: v for k, v in value.description.items() if k != ":type:"}
+    if value is None:
+        value = {}
+    if not isinstance(value, dict):
+        raise ValueError(f"{path}: its policy_kwargs = {value!r:.80}: must be a dict")
+    allowed = _SETTINGS[algo]
+    classes = _classes()
+    settings: dict[str, Any] = {}
+    for key, item in value.items():
+        if key in _TRAINING_ONLY:
+            continue
+        kind = allowed.get(key)
+        if kind is None:
+            raise ValueError(f"{path}: its policy_kwargs has the setting {key!r}, unknown here; allowed: "
+                             f"{', '.join(allowed)}")
+        if kind in classes:
+            cls = classes[kind].get(item) if isinstance(item, str) else None
+            if cls is None:
+                raise ValueError(f"{path}: its policy_kwargs[{key!r}] = {item!r:.120}; allowed: "
+                                 f"{', '.join(classes[kind])}")
+            settings[key] = cls
+            continue
+        good = {"bool": isinstance(item, bool),
+                "number": isinstance(item, (int, float)) and not isinstance(item, bool) and math.isfinite(item),
+                "count": isinstance(item, int) and not isinstance(item, bool) and 1 <= item <= 16,
+                "dict": isinstance(item, dict),
+                "arch": _widths(item) or (isinstance(item, dict) and bool(item)
+                                          and all(k in ("pi", "vf", "qf") and _widths(v) for k, v in item.items()))}
+        if not good[kind]:
+            what = {"bool": "true or false", "number": "a finite number", "count": "an integer in [1, 16]",
+                    "dict": "a dict", "arch": "a list of layer widths (integers >= 1) or a dict of such lists "
+                    "under 'pi', 'vf', 'qf'"}[kind]
+            raise ValueError(f"{path}: its policy_kwargs[{key!r}] = {item!r:.80}: must be {what}")
+        settings[key] = item
+    return settings
+
 
 
 #: Models loaded in this process, by (resolved path, modification time, size): the evaluator
 #: builds a policy per run, and loading a zip costs more than flying an episode.
-_LOADED: dict[tuple[str, int, int], tuple[Any, dict[str, Any]]] = {}
+_LOADED: dict[tuple[str, int, int], tuple[LoadedModel, dict[str, Any]]] = {}
 
 
-def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
-    """(SB3 model on the CPU, metadata) of a zip saved by ``atc-nf train`` or ``atc-nf imitate``
+def load_model(path: str | Path) -> tuple[LoadedModel, dict[str, Any]]:
+    """(SB3 policy on the CPU with its spaces, metadata) of a zip saved by ``atc-nf train`` or ``atc-nf imitate``
     (cached per process until the file changes; do not modify the returned model).
 
     Raises:
@@ -156,44 +333,149 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     return _LOADED[key]
 
 
-def _load_model(path: Path) -> tuple[Any, dict[str, Any]]:
+def _least_parameters(settings: dict[str, Any], algo: str, obs_dim: int, act_dim: int) -> int:
+    """A lower bound on the number of parameters of the policy that ``settings`` describe:
+    the weights of the linear layers of its actor and of one critic (SB3's policies hold
+    at least these; biases, log std and SAC's other critics come on top)."""
+    from agents.deepsets import NeighbourSetExtractor
+
+    features, extractor = obs_dim, 0
+    hidden = (settings.get("features_extractor_kwargs") or {}).get("hidden", 64)
+    if settings.get("features_extractor_class") is NeighbourSetExtractor and isinstance(hidden, int):
+        features, extractor = 3 * hidden, 2 * hidden * hidden
+    arch = settings.get("net_arch", [256, 256] if algo == "sac" else [64, 64])
+    actor = arch.get("pi", []) if isinstance(arch, dict) else arch
+    critic = arch.get("qf" if algo == "sac" else "vf", []) if isinstance(arch, dict) else arch
+    critic_input = features + act_dim if algo == "sac" else features
+
+    def weights(dims: list[int]) -> int:
+        return sum(a * b for a, b in zip(dims, dims[1:]))
+
+    return extractor + weights([features, *actor, act_dim]) + weights([critic_input, *critic, 1])
+
+
+def _weights(path: Path) -> dict[str, Any]:
+    """The policy's state dict from the zip's ``policy.pth``, read with
+    ``torch.load(weights_only=True)``: tensors and plain containers only, never a pickled object.
+
+    Raises:
+        ValueError: no such entry, one that needs unpickling, or tensors that are not finite.
+    """
+    import torch
+
     try:
-        data = _saved_data(path)
+        with zipfile.ZipFile(path) as archive:
+            content = _read_entry(archive, WEIGHTS_ENTRY, MAX_WEIGHTS_BYTES)
+        if content is None:
+            raise ValueError(f"no {WEIGHTS_ENTRY!r} entry")
+        state = torch.load(io.BytesIO(content), map_location="cpu", weights_only=True)
+    except Exception as error:  # torch's UnpicklingError for anything but tensors, and damaged files
+        raise ValueError(f"{path}: its weights cannot be read as plain tensors ({torch_load_error(error)}); a "
+                         f"{WEIGHTS_ENTRY} that needs unpickling is refused; accepted: {_ACCEPTED}") from None
+    if (not isinstance(state, dict) or not state
+            or not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items())):
+        raise ValueError(f"{path}: its {WEIGHTS_ENTRY} is not a state dict of named tensors")
+    for name, tensor in state.items():
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise ValueError(f"{path}: its {WEIGHTS_ENTRY} holds NaN or inf in {name!r}; every weight must be finite")
+    return state
+
+
+def _box_shape(path: Path, data: dict[str, Any], key: str) -> tuple[int, ...]:
+    """The shape a zip states for its ``observation_space`` or ``action_space`` (a float32 Box)."""
+    value = data.get(key)
+    described = value.description if isinstance(value, PickledValue) else {}
+    shape = described.get("_shape")
+    if (described.get(":type:") != "<class 'gymnasium.spaces.box.Box'>" or described.get("dtype") != "float32"
+            or not isinstance(shape, list) or not shape
+            or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in shape)):
+        raise ValueError(f"{path}: its {key} is not a float32 gymnasium Box of a known shape "
+                         f"({str(described or value):.120}); accepted: {_ACCEPTED}")
+    return tuple(shape)
+
+
+def _spaces(path: Path, data: dict[str, Any], meta: dict[str, Any]) -> tuple[Any, Any]:
+    """(observation, action) spaces: the Boxes our envs give a model of ``meta``'s mode and
+    K, of the shapes the zip states (the bounds of a Box do not change a policy's actions).
+
+    Raises:
+        ValueError: the shapes do not fit the model's mode and K, or K or the slots are out of bounds.
+    """
+    from gymnasium import spaces
+
+    env = meta["env"]
+    k = env.get("n_neighbours", 4)
+    if isinstance(k, bool) or not isinstance(k, int) or not 0 <= k <= MAX_NEIGHBOURS:
+        raise ValueError(f"{path}: its {META_KEY}['env']['n_neighbours'] = {k!r:.40}: must be an integer in "
+                         f"[0, {MAX_NEIGHBOURS}]")
+    spec = ObservationSpec(n_neighbours=k, expose_wind=bool(env.get("expose_wind")))
+    obs_shape, act_shape = _box_shape(path, data, "observation_space"), _box_shape(path, data, "action_space")
+    if meta["mode"] == "shared":
+        slots, expected = None, ((spec.dim,), (2,))
+    else:
+        slots = act_shape[0]
+        if not 1 <= slots <= MAX_SLOTS:
+            raise ValueError(f"{path}: a centralized model with {slots} aircraft slots; at most {MAX_SLOTS}")
+        expected = ((slots * spec.dim,), (slots, 2))
+    if (obs_shape, act_shape) != expected:
+        raise ValueError(f"{path}: observations of shape {obs_shape} and actions of shape {act_shape} do not fit a "
+                         f"{meta['mode']} model with K = {k} neighbours ({expected[0]}, {expected[1]})")
+    observation = spec.space() if slots is None else spec.flat_space(slots)
+    return observation, spaces.Box(-1.0, 1.0, shape=act_shape, dtype=np.float32)
+
+
+def _load_model(path: Path) -> tuple[LoadedModel, dict[str, Any]]:
+    try:
+        from stable_baselines3.common.policies import ActorCriticPolicy
+        from stable_baselines3.sac.policies import SACPolicy
     except ImportError as error:  # pragma: no cover - depends on the install
         raise ImportError("trained agents need stable-baselines3: pip install 'atc-nf-env[rl]'") from error
-    meta = _meta_of(data)
+    data = _saved_data(path)
+    meta = _meta_of(data, path)
     algo = meta.get("algo", "ppo")
     if algo not in ALGOS:
         raise ValueError(f"{path}: algorithm {algo!r} in its metadata; allowed: {', '.join(ALGOS)}")
     if meta.get("mode") not in MODES:
         raise ValueError(f"{path}: mode {meta.get('mode')!r} in its metadata; allowed: {', '.join(MODES)}")
-    from stable_baselines3.common.policies import ActorCriticPolicy
-    from stable_baselines3.sac.policies import SACPolicy
-
-    policy_class = data.get("policy_class")
-    expected = {"ppo": ActorCriticPolicy, "sac": SACPolicy}[algo]
-    if not isinstance(policy_class, type):
-        raise ValueError(f"{path}: its policy class cannot be read ({policy_class!r:.80}); accepted: {_ACCEPTED}")
-    if not issubclass(policy_class, expected):
-        held = next((a for a, c in (("ppo", ActorCriticPolicy), ("sac", SACPolicy)) if issubclass(policy_class, c)),
-                    None)
-        what = (f"a {held.upper()} model ({policy_class.__name__})" if held
-                else f"a model of another algorithm ({policy_class.__name__}: neither PPO nor SAC)")
+    held = _class_name(data.get("policy_class"))
+    if held is None:
+        raise ValueError(f"{path}: its policy class cannot be read ({data.get('policy_class')!r:.80}); "
+                         f"accepted: {_ACCEPTED}")
+    held_algo = _POLICY_ALGOS.get(held)
+    if held_algo != algo:
+        name = held.rsplit(".", 1)[-1]
+        what = (f"a {held_algo.upper()} model ({name})" if held_algo
+                else f"a model of another algorithm ({name}: neither PPO nor SAC)")
         if isinstance(data.get(META_KEY), dict):
             why = f"its {META_KEY} says algorithm {algo!r}, but it holds {what}"
         else:
             why = (f"it holds {what} and no {META_KEY} (without it a zip is read as a parameter-shared PPO "
                    "model on the default environment settings)")
         raise ValueError(f"{path}: {why}; accepted: {_ACCEPTED}")
-    from stable_baselines3 import PPO, SAC
-
-    cls = PPO if algo == "ppo" else SAC
+    observation_space, action_space = _spaces(path, data, meta)
+    settings = _policy_settings(path, data.get("policy_kwargs"), algo)
+    if algo == "ppo":  # PPO passes its own use_sde to the policy; SAC keeps it in policy_kwargs
+        use_sde = data.get("use_sde", False)
+        if not isinstance(use_sde, bool):
+            raise ValueError(f"{path}: its use_sde = {use_sde!r:.40}: must be true or false")
+        settings["use_sde"] = use_sde
+    state = _weights(path)
+    held_parameters = sum(int(tensor.numel()) for tensor in state.values())
+    least = _least_parameters(settings, algo, int(np.prod(observation_space.shape)), int(np.prod(action_space.shape)))
+    if least > held_parameters:  # checked before building: the settings could ask for any size
+        raise ValueError(f"{path}: its policy_kwargs describe a policy of at least {least} parameters, but its "
+                         f"{WEIGHTS_ENTRY} holds {held_parameters}")
+    policy_class = ActorCriticPolicy if algo == "ppo" else SACPolicy
     try:
-        model = cls.load(str(path), device="cpu")
-    except Exception as error:  # a file that reads as SB3 but whose parts do not fit together
-        raise ValueError(f"{path}: cannot be loaded as a {algo.upper()} model ({type(error).__name__}: {error}); "
-                         f"accepted: {_ACCEPTED}") from None
-    return model, meta
+        # The learning rate only sets the optimizer's, and flying never steps it.
+        policy = policy_class(observation_space, action_space, lambda _progress: 0.0, **settings)
+        policy.load_state_dict(state)  # strict: every tensor present, none extra, same shapes
+    except Exception as error:  # settings and weights that do not fit together
+        first_line = (str(error).strip().splitlines() or [""])[0]
+        raise ValueError(f"{path}: cannot be loaded as a {algo.upper()} model ({type(error).__name__}: "
+                         f"{first_line:.300}); accepted: {_ACCEPTED}") from None
+    policy.set_training_mode(False)
+    return LoadedModel(policy, observation_space, action_space), meta
 
 
 # ------------------------------------------------------------------ compiled forward pass
@@ -342,6 +624,50 @@ class OutsideOperatingRangeWarning(UserWarning):
     """A model flies traffic or wind outside the range it was trained on."""
 
 
+def checked_outside_range(outside_range: str) -> str:
+    """``outside_range`` if it is one of ``OUTSIDE_RANGE`` (ValueError otherwise)."""
+    if outside_range not in OUTSIDE_RANGE:
+        raise ValueError(f"outside_range = {outside_range!r}: allowed: {', '.join(OUTSIDE_RANGE)}")
+    return outside_range
+
+
+class OperatingRangeCheck:
+    """``check_operating_conditions`` of a model file flown as a policy, whatever its format
+    (``.zip``, ``.pt``): the subclass sets ``path``, ``outside_range`` (``OUTSIDE_RANGE``),
+    ``operating_range`` ({"n_aircraft": [min, max], "wind_sigma_mps": [min, max]} or None)
+    and ``range_source`` (where the range was read, for the message)."""
+
+    path: Path
+    outside_range: str
+    operating_range: dict[str, list[float]] | None
+    range_source: str
+
+    def check_operating_conditions(self, n_aircraft: int, wind_sigma_mps: float | None) -> None:
+        """Warn once per model and process (``outside_range="warn"``), or raise ValueError
+        (``"refuse"``), when ``n_aircraft`` or the wind's sigma (m/s; None: a fixed wind,
+        not checked) lies outside the range the model was trained on. ``run_episode``
+        calls this before ``reset``."""
+        rng = self.operating_range
+        if rng is None or self.outside_range == "ignore":
+            return
+        problems = []
+        n_lo, n_hi = rng["n_aircraft"]
+        if not n_lo <= n_aircraft <= n_hi:
+            problems.append(f"{n_aircraft} aircraft (trained on {n_lo:g}..{n_hi:g})")
+        s_lo, s_hi = rng["wind_sigma_mps"]
+        if wind_sigma_mps is not None and not s_lo - 1e-9 <= wind_sigma_mps <= s_hi + 1e-9:
+            problems.append(f"wind sigma {wind_sigma_mps:g} m/s (trained on {s_lo:g}..{s_hi:g})")
+        if not problems:
+            return
+        message = f"{self.path.name} flies outside its operating range: {' and '.join(problems)}; {self.range_source}"
+        if self.outside_range == "refuse":
+            raise ValueError(message + "; pass outside_range='warn' or 'ignore' to fly it anyway")
+        key = str(self.path.resolve())
+        if key not in _WARNED_OUTSIDE:
+            _WARNED_OUTSIDE.add(key)
+            warnings.warn(message, OutsideOperatingRangeWarning, stacklevel=3)
+
+
 @dataclass
 class _DecisionBuffers:
     """``SB3AgentPolicy.act``'s arrays, kept between decisions of one scenario: the state's
@@ -358,7 +684,7 @@ class _DecisionBuffers:
     actions64: np.ndarray
 
 
-class SB3AgentPolicy:
+class SB3AgentPolicy(OperatingRangeCheck):
     """A model saved by ``atc-nf train`` / ``atc-nf imitate`` as a waypoint policy.
 
     Args:
@@ -374,14 +700,14 @@ class SB3AgentPolicy:
     """
 
     def __init__(self, path: str | Path, fast: bool = True, outside_range: str = "warn") -> None:
-        if outside_range not in OUTSIDE_RANGE:
-            raise ValueError(f"outside_range = {outside_range!r}: allowed: {', '.join(OUTSIDE_RANGE)}")
+        self.outside_range = checked_outside_range(outside_range)
         self.path = Path(path)
-        self.outside_range = outside_range
         self.model, self.meta = load_model(self.path)
         from agents.cards import operating_range
 
         self.operating_range = operating_range(self.meta)
+        self.range_source = (f"its card ({self.path.with_suffix('.md').name}) gives no result there that it was "
+                             "trained for")
         self.name = self.path.stem
         env = self.meta["env"]
         if env.get("expose_wind"):
@@ -411,32 +737,6 @@ class SB3AgentPolicy:
         self._spec: ObservationSpec | None = None
         self._buffers: _DecisionBuffers | None = None
         self._warm = False
-
-    def check_operating_conditions(self, n_aircraft: int, wind_sigma_mps: float | None) -> None:
-        """Warn once per model and process (``outside_range="warn"``), or raise ValueError
-        (``"refuse"``), when ``n_aircraft`` or the wind's sigma (m/s; None: a fixed wind,
-        not checked) lies outside the range the model was trained on (its card's
-        operating range). ``run_episode`` calls this before ``reset``."""
-        rng = self.operating_range
-        if rng is None or self.outside_range == "ignore":
-            return
-        problems = []
-        n_lo, n_hi = rng["n_aircraft"]
-        if not n_lo <= n_aircraft <= n_hi:
-            problems.append(f"{n_aircraft} aircraft (trained on {n_lo:g}..{n_hi:g})")
-        s_lo, s_hi = rng["wind_sigma_mps"]
-        if wind_sigma_mps is not None and not s_lo - 1e-9 <= wind_sigma_mps <= s_hi + 1e-9:
-            problems.append(f"wind sigma {wind_sigma_mps:g} m/s (trained on {s_lo:g}..{s_hi:g})")
-        if not problems:
-            return
-        message = (f"{self.path.name} flies outside its operating range: {' and '.join(problems)}; its card "
-                   f"({self.path.with_suffix('.md').name}) gives no result there that it was trained for")
-        if self.outside_range == "refuse":
-            raise ValueError(message + "; pass outside_range='warn' or 'ignore' to fly it anyway")
-        key = str(self.path.resolve())
-        if key not in _WARNED_OUTSIDE:
-            _WARNED_OUTSIDE.add(key)
-            warnings.warn(message, OutsideOperatingRangeWarning, stacklevel=3)
 
     # -- Policy interface -------------------------------------------------------------
     def reset(self, scenario: Scenario, config: SimConfig, seed: int | None = None) -> None:
@@ -512,6 +812,7 @@ def is_model_path(spec: str) -> bool:
     return isinstance(spec, str) and spec.lower().endswith(".zip")
 
 
-__all__ = ["META_KEY", "OutsideOperatingRangeWarning", "SB3AgentPolicy", "default_meta", "env_meta", "is_model_path", "load_model", "compiled_forward",
+__all__ = ["META_KEY", "LoadedModel", "OperatingRangeCheck", "OutsideOperatingRangeWarning", "PickledValue", "SB3AgentPolicy",
+           "checked_outside_range", "default_meta", "env_meta", "is_model_path", "load_model", "compiled_forward",
            "read_meta"]
 

@@ -261,7 +261,9 @@ def make_model(args: Args, venv: Any) -> Any:
     policy_kwargs: dict[str, Any] = {"net_arch": {"pi": arch, "vf": arch}, "log_std_init": args.log_std_init}
     source = None
     if args.init_from is not None:
-        source = PPO.load(str(args.init_from), device="cpu")
+        from agents.policy import load_model
+
+        source = load_model(args.init_from)[0]  # never unpickles: SB3's PPO.load would run a hostile zip's code
         policy_kwargs = {"net_arch": source.policy.net_arch, "activation_fn": source.policy.activation_fn,
                          "log_std_init": args.log_std_init}
     model = PPO("MlpPolicy", venv, learning_rate=args.learning_rate, n_steps=args.n_steps,

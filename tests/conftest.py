@@ -2,9 +2,26 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterator
+
 import pytest
 
 from atc_nf_env import kernel
+
+
+@pytest.fixture(autouse=True, scope="session")
+def sb3_logs_in_pytests_temp_folder(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """SB3's ``learn`` without a tensorboard folder logs to ``$SB3_LOGDIR``, else to a new
+    ``SB3-<date>`` folder in the system temp directory that nothing removes: point it into
+    pytest's temp folder (rotated by pytest), for this process and the commands it starts."""
+    saved = os.environ.get("SB3_LOGDIR")
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3-logs"))
+    yield
+    if saved is None:
+        os.environ.pop("SB3_LOGDIR", None)
+    else:
+        os.environ["SB3_LOGDIR"] = saved
 
 
 @pytest.fixture(autouse=True)
