@@ -65,6 +65,10 @@ class EpisodeResult:
     decision_times_s: np.ndarray
     #: (decisions,) wall time of each decision (the policy's ``act``), s.
     decision_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: A traffic stream's slots, (K,) s and (K, N): ``StreamSimulation.slot_history``;
+    #: None for an encounter.
+    slot_flight_times_s: np.ndarray | None = None
+    slot_flight: np.ndarray | None = None
 
 
 def episode_wind_kt(seed: int | None, wind_sigma_mps: float) -> np.ndarray:
@@ -206,6 +210,7 @@ def run_episode(
     wall = time.perf_counter() - start
     times, records = sim.recording()
     metrics = run_metrics(sim, seed=seed, wall_s=wall, decision_s=decision_s)
+    slot_times, slot_flight = sim.slot_history() if stream else (None, None)  # type: ignore[attr-defined]
     return EpisodeResult(
         metrics=metrics,
         times_s=times,
@@ -213,4 +218,6 @@ def run_episode(
         waypoints=np.array(waypoints),
         decision_times_s=np.array(decision_times),
         decision_s=np.array(decision_s),
+        slot_flight_times_s=slot_times,
+        slot_flight=slot_flight,
     )

@@ -5,7 +5,9 @@ A frame shows every aircraft with its heading (a triangle), its 5 nm separation
 circle (another aircraft inside it is a loss of separation; drawn red while one is),
 its current waypoint (a hollow circle, dotted line from the aircraft), its destination
 (a cross), its trail, the wind (an arrow in the corner, with its speed in kt) and the
-time. Coordinates in nm, x east, y north.
+time. A traffic stream's frame shows the flights airborne (labelled with their flight
+numbers and colours: a flight that enters appears at the sector's edge, one that
+arrives or leaves is gone at the next decision), the sector's edge, and no empty slot. Coordinates in nm, x east, y north.
 
 Entry points:
     ``render_simulation(sim, ...)``  one frame of a ``Simulation``;
@@ -50,6 +52,12 @@ class Snapshot:
         extent: (xmin, xmax, ymin, ymax) of the view, nm.
         title: a title line.
         separation_nm: radius of the separation circles, nm.
+        labels: (N,) text next to each flying aircraft (default: its index).
+        color_ids: (N,) colour index of each aircraft (default: its index), so that an
+            aircraft keeps its colour while others come and go.
+        sector_radius_nm: radius of a traffic stream's sector, drawn around the origin
+            (None: none drawn).
+        legend_aircraft: one legend entry per aircraft (off for streams: dozens).
     """
 
     positions: np.ndarray
@@ -64,6 +72,10 @@ class Snapshot:
     title: str = ""
     separation_nm: float = SEPARATION_MIN_NM
     in_conflict: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    labels: Sequence[str] | None = None
+    color_ids: np.ndarray | None = None
+    sector_radius_nm: float | None = None
+    legend_aircraft: bool = True
 
     def __post_init__(self) -> None:
         if self.in_conflict.shape != self.flying.shape:
@@ -106,11 +118,12 @@ class FrameRenderer:
         self._artists: list[Any] = []
         self._background: Any = None
 
-    def _frame(self, extent: tuple[float, float, float, float], title: str, n_aircraft: int = 0) -> None:
-        """The static part (axes, ticks, grid, labels, legend), drawn once per view and kept
-        as a pixel background: redrawing the tick labels every frame would cost most of the
-        drawing time."""
-        if (extent, title, n_aircraft) == self._view:
+    def _frame(self, extent: tuple[float, float, float, float], title: str, n_aircraft: int = 0,
+               sector_radius_nm: float | None = None) -> None:
+        """The static part (axes, ticks, grid, labels, legend, a stream's sector edge),
+        drawn once per view and kept as a pixel background: redrawing the tick labels
+        every frame would cost most of the drawing time."""
+        if (extent, title, n_aircraft, sector_radius_nm) == self._view:
             return
         ax = self.axes
         for artist in self._artists:
@@ -124,9 +137,13 @@ class FrameRenderer:
         ax.set_xlabel("x (nm)", fontsize=8)
         ax.set_ylabel("y (nm)", fontsize=8)
         ax.set_title(title, fontsize=9)
+        if sector_radius_nm is not None:
+            circle = np.linspace(0.0, 2.0 * np.pi, 361)
+            ax.plot(sector_radius_nm * np.cos(circle), sector_radius_nm * np.sin(circle), color="0.6", lw=1,
+                    ls="--")
         self._legend(n_aircraft)
         self._artists = []
-        self._view = (extent, title, n_aircraft)
+        self._view = (extent, title, n_aircraft, sector_radius_nm)
         self.canvas.draw()
         self._background = self.canvas.copy_from_bbox(self.figure.bbox)
 
@@ -148,7 +165,10 @@ class FrameRenderer:
         from matplotlib.patches import Circle, Polygon
 
         ax = self.axes
-        self._frame(tuple(float(v) for v in snap.extent), snap.title, len(snap.positions))  # type: ignore[arg-type]
+        self._frame(
+            tuple(float(v) for v in snap.extent), snap.title,  # type: ignore[arg-type]
+            len(snap.positions) if snap.legend_aircraft else 0, snap.sector_radius_nm,
+        )
         for artist in self._artists:
             artist.remove()
         self.canvas.restore_region(self._background)
@@ -157,7 +177,8 @@ class FrameRenderer:
         span = max(xmax - xmin, ymax - ymin)
         size = 0.018 * span  # aircraft glyph, nm
         for i in range(len(snap.positions)):
-            color = AIRCRAFT_COLORS[i % len(AIRCRAFT_COLORS)]
+            color_id = i if snap.color_ids is None else int(snap.color_ids[i])
+            color = AIRCRAFT_COLORS[color_id % len(AIRCRAFT_COLORS)]
             trail = snap.trails[i] if i < len(snap.trails) else np.zeros((0, 2))
             if len(trail) > 1:
                 added += ax.plot(trail[:, 0], trail[:, 1], color=color, lw=1.0, alpha=0.7)
@@ -193,7 +214,8 @@ class FrameRenderer:
             added.append(ax.add_patch(Polygon(triangle, closed=True, color=color, alpha=1.0 if snap.flying[i] else 0.3)))
             if snap.flying[i]:
                 added.append(
-                    ax.annotate(str(i), (x, y), xytext=(5, 5), textcoords="offset points", fontsize=8, color=color)
+                    ax.annotate(str(i) if snap.labels is None else snap.labels[i], (x, y), xytext=(5, 5),
+                                textcoords="offset points", fontsize=8, color=color)
                 )
         added.append(
             ax.text(
@@ -267,7 +289,12 @@ def snapshot_of_simulation(
     show_wind: bool = True,
 ) -> Snapshot:
     """The current state of a ``Simulation`` as a snapshot; trails from its recording
-    (``record_every > 0``), else only the start and the current position."""
+    (``record_every > 0``), else only the start and the current position. A traffic
+    stream's (``StreamSimulation``): the flights in their slots only (``stream_snapshot``)."""
+    from atc_nf_env.streams import StreamSimulation
+
+    if isinstance(sim, StreamSimulation):
+        return stream_snapshot(sim, extent=extent, title=title, show_wind=show_wind)
     state = sim.state[0]
     n = sim.n_aircraft
     positions = state[:n, S_X : S_Y + 1].copy()
@@ -291,6 +318,74 @@ def snapshot_of_simulation(
         title=title if title is not None else sim.scenario.name,
         separation_nm=sim.config.separation_min_nm,
     )
+
+
+def stream_extent(sector_radius_nm: float, margin_nm: float = 40.0) -> tuple[float, float, float, float]:
+    """The view of a traffic stream: its sector (centred on the origin) with a margin, nm."""
+    corner = np.array([[-sector_radius_nm, -sector_radius_nm], [sector_radius_nm, sector_radius_nm]])
+    return view_extent(corner, margin_nm)
+
+
+def stream_snapshot(
+    sim: Any, *, extent: tuple[float, float, float, float] | None = None, title: str | None = None,
+    show_wind: bool = True,
+) -> Snapshot:
+    """A ``StreamSimulation``'s current state: the flights in their slots (empty slots
+    left out), labelled and coloured by flight number, trails from the recording of each
+    flight's time in its slot (``record_every > 0``), else from its entry point."""
+    stream = sim.stream
+    slots = np.flatnonzero(sim.slot_flight >= 0)
+    flights = sim.slot_flight[slots]
+    state = sim.state[0, slots]
+    positions = state[:, S_X : S_Y + 1].copy()
+    times, records = sim.recording()
+    if len(records):
+        history_times, history = sim.slot_history()
+        occupant = occupants_of_records(times, history_times, history)
+        start = occupancy_start_rows(occupant)[-1]
+        # A flight that entered at this instant has no record yet (the last record is the
+        # state before the entries).
+        trails = [np.concatenate([stream.start_xy[f][None],
+                                  records[start[s]:, s, R_X : R_Y + 1] if occupant[-1, s] == f else np.zeros((0, 2)),
+                                  positions[k][None]])
+                  for k, (s, f) in enumerate(zip(slots, flights))]
+    else:
+        trails = [np.stack([stream.start_xy[f], positions[k]]) for k, f in enumerate(flights)]
+    return Snapshot(
+        positions=positions,
+        headings=state[:, S_HEADING].copy(),
+        flying=state[:, S_STATUS] == FLYING,
+        waypoints=state[:, S_WP_X : S_WP_Y + 1].copy(),
+        destinations=state[:, S_DEST_X : S_DEST_Y + 1].copy(),
+        trails=trails,
+        wind_kt=np.asarray(sim.wind_kt) if show_wind else None,
+        time_s=float(sim.time_s),
+        extent=extent if extent is not None else stream_extent(stream.sector_radius_nm),
+        title=title if title is not None else stream.name,
+        separation_nm=sim.config.separation_min_nm,
+        labels=[str(int(f)) for f in flights],
+        color_ids=flights.copy(),
+        sector_radius_nm=float(stream.sector_radius_nm),
+        legend_aircraft=False,
+    )
+
+
+def occupants_of_records(times_s: np.ndarray, history_times_s: np.ndarray, history: np.ndarray) -> np.ndarray:
+    """(R, N) the flight in each slot at each record (-1: empty), from a stream's
+    ``slot_history``: a record at a decision instant is the state before its exits and
+    entries, so it belongs to the slots of the decision before."""
+    if len(history_times_s) == 0:
+        raise ValueError("the stream's slot history is empty")
+    # 1 µs below each record's time: its own decision instant counts as later.
+    k = np.searchsorted(np.asarray(history_times_s), np.asarray(times_s) - 1e-6, side="left") - 1
+    return np.asarray(history)[np.clip(k, 0, len(history_times_s) - 1)]
+
+
+def occupancy_start_rows(occupant: np.ndarray) -> np.ndarray:
+    """(R, N) for each record and slot, the first record of the slot's current occupant."""
+    rows = np.arange(occupant.shape[0])[:, None]
+    changed = np.vstack([np.ones((1, occupant.shape[1]), dtype=bool), occupant[1:] != occupant[:-1]])
+    return np.maximum.accumulate(np.where(changed, rows, 0), axis=0)
 
 
 def render_simulation(sim: Any, size_px: int = 512, renderer: FrameRenderer | None = None, **kwargs: Any) -> np.ndarray:
@@ -323,20 +418,13 @@ def snapshots_of_recording(
         frame_every_s: simulated seconds between frames.
     """
     times_s = np.asarray(times_s, dtype=np.float64)
-    if records.shape[0] == 0:
-        raise ValueError("the recording is empty: run the episode with record_every > 0")
+    rows = _frame_rows(times_s, records, frame_every_s)
     n = records.shape[1]
     extent = view_extent(np.concatenate([records[0, :, R_X : R_Y + 1], destinations]))
-    targets = np.arange(0.0, times_s[-1] + 1e-9, max(frame_every_s, 1e-9))
-    rows = np.unique(np.append(np.searchsorted(times_s, targets - 1e-9).clip(0, len(times_s) - 1), len(times_s) - 1))
     snaps = []
     for r in rows:
         flying = records[r, :, R_FLEW] > 0
-        if waypoints is not None and decision_times_s is not None and len(waypoints):
-            k = max(0, int(np.searchsorted(decision_times_s, times_s[r], side="right")) - 1)
-            wp = np.asarray(waypoints[k], dtype=np.float64)
-        else:
-            wp = np.asarray(destinations, dtype=np.float64)
+        wp = _waypoints_at(decision_times_s, waypoints, times_s[r], destinations)
         snaps.append(
             Snapshot(
                 positions=records[r, :, R_X : R_Y + 1].copy(),
@@ -350,6 +438,89 @@ def snapshots_of_recording(
                 extent=extent,
                 title=title,
                 separation_nm=separation_nm,
+            )
+        )
+    return snaps
+
+
+def _frame_rows(times_s: np.ndarray, records: np.ndarray, frame_every_s: float) -> np.ndarray:
+    """The records drawn: the first at or after every ``frame_every_s``, and the last."""
+    if records.shape[0] == 0:
+        raise ValueError("the recording is empty: run the episode with record_every > 0")
+    targets = np.arange(0.0, times_s[-1] + 1e-9, max(frame_every_s, 1e-9))
+    return np.unique(np.append(np.searchsorted(times_s, targets - 1e-9).clip(0, len(times_s) - 1), len(times_s) - 1))
+
+
+def _waypoints_at(decision_times_s: np.ndarray | None, waypoints: np.ndarray | None, time_s: float,
+                  default: np.ndarray) -> np.ndarray:
+    """The waypoints in force at ``time_s``: the last decided at or before it (``default``
+    without decisions)."""
+    if waypoints is None or decision_times_s is None or not len(waypoints):
+        return np.asarray(default, dtype=np.float64)
+    k = max(0, int(np.searchsorted(decision_times_s, time_s, side="right")) - 1)
+    return np.asarray(waypoints[k], dtype=np.float64)
+
+
+def snapshots_of_stream_recording(
+    times_s: np.ndarray,
+    records: np.ndarray,
+    stream: Any,
+    slot_flight_times_s: np.ndarray,
+    slot_flight: np.ndarray,
+    *,
+    decision_times_s: np.ndarray | None = None,
+    waypoints: np.ndarray | None = None,
+    wind_kt: np.ndarray | None = None,
+    frame_every_s: float = 60.0,
+    title: str = "",
+    separation_nm: float = SEPARATION_MIN_NM,
+) -> list[Snapshot]:
+    """Snapshots every ``frame_every_s`` of a traffic stream's recording: in each, the
+    flights then in their slots (``stream_snapshot``'s drawing), each trail from the
+    flight's entry point.
+
+    Args:
+        times_s, records: (R,) s and (R, N, N_RECORD) over the N slots.
+        stream: the ``StreamScenario`` flown (entry points and destinations per flight).
+        slot_flight_times_s, slot_flight: (K,) s and (K, N), the slots' occupants
+            (``EpisodeResult.slot_flight``, ``StreamSimulation.slot_history``).
+        decision_times_s, waypoints, wind_kt, frame_every_s: as ``snapshots_of_recording``.
+    """
+    times_s = np.asarray(times_s, dtype=np.float64)
+    rows = _frame_rows(times_s, records, frame_every_s)
+    if slot_flight.shape[1:] != records.shape[1:2]:
+        raise ValueError(f"slot_flight has shape {slot_flight.shape}; the records have {records.shape[1]} slots")
+    occupant = occupants_of_records(times_s, slot_flight_times_s, slot_flight)
+    if occupant.max(initial=-1) >= stream.n_flights:
+        raise ValueError(f"the slots hold flight {int(occupant.max())}; the stream {stream.name!r} has "
+                         f"{stream.n_flights} flights: give the StreamScenario that was flown")
+    start = occupancy_start_rows(occupant)
+    extent = stream_extent(stream.sector_radius_nm)
+    snaps = []
+    for r in rows:
+        slots = np.flatnonzero(occupant[r] >= 0)
+        flights = occupant[r, slots]
+        destinations = np.zeros((records.shape[1], 2))
+        destinations[slots] = stream.dest_xy[flights]
+        wp = _waypoints_at(decision_times_s, waypoints, times_s[r], destinations)
+        snaps.append(
+            Snapshot(
+                positions=records[r, slots, R_X : R_Y + 1].copy(),
+                headings=records[r, slots, R_HEADING].copy(),
+                flying=records[r, slots, R_FLEW] > 0,
+                waypoints=wp[slots],
+                destinations=destinations[slots],
+                trails=[np.concatenate([stream.start_xy[f][None], records[start[r, s] : r + 1, s, R_X : R_Y + 1]])
+                        for s, f in zip(slots, flights)],
+                wind_kt=None if wind_kt is None else np.asarray(wind_kt, dtype=np.float64),
+                time_s=float(times_s[r]),
+                extent=extent,
+                title=title,
+                separation_nm=separation_nm,
+                labels=[str(int(f)) for f in flights],
+                color_ids=flights.copy(),
+                sector_radius_nm=float(stream.sector_radius_nm),
+                legend_aircraft=False,
             )
         )
     return snaps
@@ -459,7 +630,8 @@ def save_animation(
     - an ``atc_nf_env.episode.EpisodeResult`` from ``run_episode(..., record_every=k)``
       with k > 0 (``scenario`` required: the Scenario that was flown, for the
       destinations); a frame every ``frame_every_s`` of simulated time, the waypoints
-      in force and the wind from the result;
+      in force and the wind from the result (a traffic stream's: its StreamScenario, the
+      flights in their slots as ``EpisodeResult.slot_flight`` says);
     - an environment made with ``render_mode="rgb_array"`` (``atc_nf_env.parallel_env``
       or ``gym.make("atc_nf_env/Encounter-v0")``): one episode is played from
       ``reset(seed=seed)`` with ``policy`` (obs -> actions, as the env takes them;
@@ -497,16 +669,29 @@ def save_animation(
             scenario = make_scenario(scenario, seed=source.metrics.seed)
         if source.records.shape[0] == 0:
             raise ValueError("the EpisodeResult has no recording: run run_episode(..., record_every=1) (or > 0)")
-        snaps = snapshots_of_recording(
-            source.times_s,
-            source.records,
-            scenario.dest_xy,
-            decision_times_s=source.decision_times_s,
-            waypoints=source.waypoints,
-            wind_kt=np.asarray(source.metrics.wind_kt),
-            frame_every_s=frame_every_s,
-            title=title if title is not None else f"{scenario.name}  seed {source.metrics.seed}",
-        )
+        from atc_nf_env.scenarios import StreamScenario
+
+        common = {
+            "decision_times_s": source.decision_times_s,
+            "waypoints": source.waypoints,
+            "wind_kt": np.asarray(source.metrics.wind_kt),
+            "frame_every_s": frame_every_s,
+            "title": title if title is not None else f"{scenario.name}  seed {source.metrics.seed}",
+        }
+        is_stream = source.slot_flight is not None
+        if is_stream != isinstance(scenario, StreamScenario):
+            flown = "a traffic stream" if is_stream else "an encounter"
+            raise ValueError(f"save_animation: the EpisodeResult is of {flown}, scenario {scenario.name!r} is not: "
+                             "give the scenario that was flown")
+        if is_stream:
+            snaps = snapshots_of_stream_recording(
+                source.times_s, source.records, scenario, source.slot_flight_times_s, source.slot_flight, **common
+            )
+        else:
+            if scenario.n_aircraft != source.records.shape[1]:
+                raise ValueError(f"save_animation: scenario {scenario.name!r} has {scenario.n_aircraft} aircraft, "
+                                 f"the EpisodeResult {source.records.shape[1]}: give the scenario that was flown")
+            snaps = snapshots_of_recording(source.times_s, source.records, scenario.dest_xy, **common)
         renderer = FrameRenderer(size_px)
         frames = [renderer.draw(s) for s in snaps]
         renderer.close()
@@ -533,6 +718,9 @@ __all__ = [
     "save_animation",
     "snapshot_of_simulation",
     "snapshots_of_recording",
+    "snapshots_of_stream_recording",
+    "stream_extent",
+    "stream_snapshot",
     "view_extent",
     "write_gif",
 ]

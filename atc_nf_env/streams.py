@@ -116,7 +116,12 @@ class StreamSimulation(Simulation):
         self.slot_flight = np.full(scenario.n_aircraft, -1, dtype=np.int64)
         self.flights = FlightLog(scenario.n_flights)
         self.max_airborne_seen = 0
+        #: ``slot_flight`` after each decision instant's exits and entries, and its time
+        #: (``slot_history``): which flight each recorded slot holds, for the animations.
+        self._history_times_s: list[float] = []
+        self._history: list[np.ndarray] = []
         self._admit()
+        self._keep_history()
 
     @property
     def done(self) -> bool:
@@ -149,6 +154,17 @@ class StreamSimulation(Simulation):
         """Empty the slots of the flights that arrived or left, then let in those due."""
         self._retire()
         self._admit()
+        self._keep_history()
+
+    def _keep_history(self) -> None:
+        self._history_times_s.append(self.time_s)
+        self._history.append(self.slot_flight.copy())
+
+    def slot_history(self) -> tuple[np.ndarray, np.ndarray]:
+        """(times (K,) s, slot_flight (K, N)): row k is the flight in each slot (-1:
+        empty) from decision instant ``times[k]`` on (after its exits and entries) until
+        the next; a state recorded at a decision instant itself is the one before them."""
+        return np.array(self._history_times_s), np.array(self._history, dtype=np.int64).reshape(-1, self.n_aircraft)
 
     # -- bookkeeping ----------------------------------------------------------------
     def _log_trace(self, trace: Trace, occupant: np.ndarray) -> None:

@@ -145,3 +145,116 @@ def test_torchrl_gym_env_takes_a_stream_as_the_refusal_says():
     rollout = env.rollout(6, break_when_any_done=False)
     assert rollout["aircraft"].shape[1:] == (env.observation_spec["mask"].shape[-1], rollout["aircraft"].shape[-1])
     assert rollout["next", "truncated"].any()
+
+
+# ------------------------------------------------------------------ item 10: streams render and animate
+
+
+def _stream_result(scenario_name: str = "stream-30-90min", seed: int = 1):
+    from atc_nf_env.episode import run_episode
+    from atc_nf_env.scenarios import make_scenario
+    from baselines import NFLeg
+
+    scenario = make_scenario(scenario_name, seed=seed)
+    return scenario, run_episode(NFLeg(), scenario, seed=seed, record_every=1)
+
+
+def test_slot_history_names_the_flight_each_record_shows():
+    from atc_nf_env.kernel import R_X, R_Y
+    from atc_nf_env.rendering import occupancy_start_rows, occupants_of_records
+
+    scenario, result = _stream_result()
+    occupant = occupants_of_records(result.times_s, result.slot_flight_times_s, result.slot_flight)
+    assert occupant.shape == result.records.shape[:2]
+    start = occupancy_start_rows(occupant)
+    entries = [(r, s) for r, s in zip(*np.nonzero(start == np.arange(len(occupant))[:, None]))
+               if r > 0 and occupant[r, s] >= 0]
+    assert len(entries) >= 10
+    for r, s in entries:
+        # The first record of a flight in its slot is one 5-s step from its entry point.
+        gap = np.hypot(*(result.records[r, s, R_X : R_Y + 1] - scenario.start_xy[occupant[r, s]]))
+        assert gap < 1.0, (r, s, gap)
+    assert set(occupant[occupant >= 0]) == set(np.flatnonzero(np.isfinite(_entered(scenario, result))))
+
+
+def _entered(scenario, result):
+    """Entry times of the flights (NaN: never entered), from the slot history."""
+    entered = np.full(scenario.n_flights, np.nan)
+    for t, row in zip(result.slot_flight_times_s, result.slot_flight):
+        for f in row[row >= 0]:
+            entered[f] = t if np.isnan(entered[f]) else entered[f]
+    return entered
+
+
+def test_stream_animation_frames_follow_the_slots_as_they_fill_and_empty():
+    from atc_nf_env.rendering import snapshots_of_stream_recording
+
+    scenario, result = _stream_result()
+    snaps = snapshots_of_stream_recording(
+        result.times_s, result.records, scenario, result.slot_flight_times_s, result.slot_flight,
+        decision_times_s=result.decision_times_s, waypoints=result.waypoints,
+    )
+    counts = [len(s.positions) for s in snaps]
+    assert counts[0] == 0 and max(counts) >= 10  # the sector fills
+    labels = [set(s.labels) for s in snaps]
+    assert any(a - b for a, b in zip(labels, labels[1:]))  # and flights leave it
+    for snap in snaps:
+        flights = np.array([int(label) for label in snap.labels], dtype=np.int64)
+        assert (snap.destinations == scenario.dest_xy[flights]).all()
+        assert all((trail[0] == scenario.start_xy[f]).all() for trail, f in zip(snap.trails, flights))
+
+
+def test_cli_fly_animates_a_stream(tmp_path):
+    from PIL import Image
+
+    from atc_nf_env.cli import main
+
+    gif = tmp_path / "stream.gif"
+    # The issue's command: an IndexError in rendering.py before.
+    assert main(["fly", "--policy", "nf-leg", "--scenario", "stream-30-60min", "--seed", "1",
+                 "--animate", str(gif)]) == 0
+    with Image.open(gif) as image:
+        assert image.n_frames >= 10
+
+
+@pytest.mark.parametrize("form", ["parallel", "aec", "gym"])
+def test_stream_envs_render_rgb_arrays(form):
+    import gymnasium as gym
+
+    kwargs = {"scenario": "stream-2.5-60min", "render_mode": "rgb_array", "render_size_px": 128}
+    if form == "gym":
+        env = gym.make("atc_nf_env/Encounter-v0", **kwargs)
+    else:
+        env = atc_nf_env.parallel_env(**kwargs) if form == "parallel" else atc_nf_env.env(**kwargs)
+    env.reset(seed=6)
+    first = env.render()
+    assert first.shape == (128, 128, 3) and first.dtype == np.uint8
+    if form == "parallel":
+        env.step({agent: np.zeros(2) for agent in env.agents})
+    elif form == "aec":
+        for _ in env.agents[:]:
+            env.step(np.zeros(2, dtype=np.float32))
+    else:
+        env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+    assert not np.array_equal(env.render(), first)  # the aircraft moved
+    env.close()
+
+
+def test_an_empty_sector_renders_and_a_stream_env_animates(tmp_path):
+    from atc_nf_env.rendering import save_animation
+
+    env = atc_nf_env.parallel_env(scenario="stream-2.5-60min", max_cycles=3, render_mode="rgb_array",
+                                  render_size_px=96)
+    env.reset(seed=1)  # no flight enters in the first 15 min
+    assert not env.agents and env.render().shape == (96, 96, 3)
+    path = save_animation(env, tmp_path / "env.gif", seed=6)
+    assert path.stat().st_size > 0
+
+
+def test_animation_refuses_a_result_of_another_scenario(tmp_path):
+    from atc_nf_env.rendering import save_animation
+    from atc_nf_env.scenarios import make_scenario
+
+    _, result = _stream_result("stream-2.5-60min", seed=6)
+    with pytest.raises(ValueError, match="is of a traffic stream"):
+        save_animation(result, tmp_path / "x.gif", scenario=make_scenario("converging-4", seed=0))

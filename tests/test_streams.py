@@ -276,11 +276,12 @@ def test_gym_stream_env_masks_slots():
     vec.close()
 
 
-def test_stream_envs_refuse_rendering():
+def test_stream_envs_render_rgb_frames():
     import atc_nf_env
 
-    with pytest.raises(ValueError, match="a stream is not rendered yet"):
-        atc_nf_env.parallel_env(scenario="stream-60", render_mode="rgb_array")
+    env = atc_nf_env.parallel_env(scenario="stream-60", render_mode="rgb_array", render_size_px=96)
+    env.reset(seed=0)
+    assert env.render().shape == (96, 96, 3)
 
 
 def test_slot_counts_are_bounded_and_fixed_per_env():

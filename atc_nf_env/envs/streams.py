@@ -10,7 +10,8 @@ common ones (``atc_nf_env.envs.EnvConfig``), with these differences:
 - The episode ends at the stream's length (``stream-60``: 120 min; ``stream-60-90min``:
   90 min), or at ``max_episode_minutes`` / ``max_cycles`` if one is given (not None;
   any value, 180 included) and shorter: every aircraft still airborne is then truncated.
-- ``render_mode`` must be None (a stream is not rendered yet).
+- ``render_mode`` "rgb_array" or "human" draws the flights airborne, labelled with
+  their flight numbers, and the sector's edge (``atc_nf_env.rendering.stream_snapshot``).
 
 PettingZoo: the agents are the flights, ``flight_0`` ... ``flight_{F-1}``, in the order
 they are due; ``possible_agents`` holds the most flights a stream of that rate and length
@@ -47,7 +48,8 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import AgentSelector
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
-from atc_nf_env.envs import EnvConfig, draw_episode_seed, episode_wind
+from atc_nf_env.envs import RENDER_MODES, EnvConfig, draw_episode_seed, episode_wind
+from atc_nf_env.envs.centralized import close_renderers, render_world
 from atc_nf_env.envs.actions import waypoints_for_state
 from atc_nf_env.envs.observations import ObservationSpec
 from atc_nf_env.envs.rewards import RewardWeights
@@ -71,8 +73,6 @@ class StreamWorld:
     decision period per step, with each period's rewards and ends per slot."""
 
     def __init__(self, cfg: EnvConfig, where: str) -> None:
-        if cfg.render_mode is not None:
-            raise ValueError(f"{where}: render_mode = {cfg.render_mode!r}: a stream is not rendered yet; use None")
         self.cfg = cfg
         self.spec = cfg.scenario
         template = cfg.scenario if isinstance(cfg.scenario, StreamScenario) else make_scenario(cfg.scenario, seed=0)
@@ -198,12 +198,15 @@ def _agent_name(flight: int) -> str:
 class StreamParallelEnv(ParallelEnv):
     """The PettingZoo parallel env of a traffic stream (see the module docstring)."""
 
-    metadata = {"name": "atc_nf_stream_v0", "render_modes": [], "is_parallelizable": True, "render_fps": 4}
+    metadata = {"name": "atc_nf_stream_v0", "render_modes": list(RENDER_MODES), "is_parallelizable": True,
+                "render_fps": 4}
 
     def __init__(self, **kwargs: Any) -> None:
         cfg = EnvConfig.from_kwargs(kwargs, "parallel_env")
         self.world = StreamWorld(cfg, "parallel_env")
-        self.render_mode = None
+        self.render_mode = cfg.render_mode
+        self._renderer: Any = None
+        self._viewer: Any = None
         self.possible_agents = [_agent_name(k) for k in range(self.world.max_flights)]
         self.agents: list[str] = []
         space = self.world.obs_spec.space()
@@ -249,6 +252,8 @@ class StreamParallelEnv(ParallelEnv):
         live = self._live()
         self.agents = sorted(live, key=lambda a: int(a[len(AGENT_PREFIX):]))
         obs = {agent: self.world.obs[live[agent]] for agent in self.agents}
+        if self.render_mode == "human":
+            self.render()
         return obs, {agent: self._info(live[agent]) for agent in self.agents}
 
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
@@ -289,7 +294,11 @@ class StreamParallelEnv(ParallelEnv):
         now = self._live()
         for agent, slot in now.items():
             if agent in live:
-                obs[agent] = self.world.obs[slot]
+                obs[agent] = self.world.obs[slot]  # after the skipped periods, if any
+                continue
+            if truncated:  # entered at the episode's last instant: no period left to fly
+                continue
+            obs[agent] = self.world.obs[slot]
             rewards[agent] = 0.0
             terminations[agent] = False
             truncations[agent] = truncated
@@ -297,16 +306,20 @@ class StreamParallelEnv(ParallelEnv):
         self.agents = [] if truncated else [
             a for a in sorted(now, key=lambda a: int(a[len(AGENT_PREFIX):])) if not terminations[a]
         ]
+        if self.render_mode == "human":
+            self.render()
         return obs, rewards, terminations, truncations, infos
 
     def state(self) -> np.ndarray:
         return self.world.global_state()
 
-    def render(self) -> None:
-        return None
+    def render(self, mode: str | None = None) -> np.ndarray | None:
+        """An (H, W, 3) uint8 frame for ``render_mode="rgb_array"`` (see
+        ``ATCParallelEnv.render``): the flights airborne and the sector's edge."""
+        return render_world(self, self.world, mode)
 
     def close(self) -> None:
-        pass
+        close_renderers(self)
 
     def stream_metrics(self) -> dict[str, Any]:
         """The stream's metrics so far (``StreamSimulation.stream_metrics``)."""
@@ -317,12 +330,14 @@ class StreamParallelEnv(ParallelEnv):
 class StreamEnv(gym.Env):
     """The centralized Gymnasium env of a traffic stream (see the module docstring)."""
 
-    metadata = {"render_modes": [], "render_fps": 4}
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 4}
 
     def __init__(self, **kwargs: Any) -> None:
         cfg = EnvConfig.from_kwargs(kwargs, "StreamEnv")
         self.world = StreamWorld(cfg, "StreamEnv")
-        self.render_mode = None
+        self.render_mode = cfg.render_mode
+        self._renderer: Any = None
+        self._viewer: Any = None
         m = self.world.n_slots
         box = self.world.obs_spec.space()
         self.observation_space = spaces.Dict({
@@ -358,6 +373,8 @@ class StreamEnv(gym.Env):
         super().reset(seed=seed)
         episode_seed = check_seed(seed) if seed is not None else draw_episode_seed(self.np_random, stream=True)
         self.world.reset(episode_seed)
+        if self.render_mode == "human":
+            self.render()
         return self._observation(), self._info()
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
@@ -379,7 +396,17 @@ class StreamEnv(gym.Env):
             )
         outcome = self.world.step(array)
         reward = float(outcome["reward"].sum())
+        if self.render_mode == "human":
+            self.render()
         return self._observation(), reward, False, self.world.truncated, self._info()
+
+    def render(self, mode: str | None = None) -> np.ndarray | None:
+        """An (H, W, 3) uint8 frame for ``render_mode="rgb_array"``: the flights airborne
+        and the sector's edge; a window for "human"."""
+        return render_world(self, self.world, mode)
+
+    def close(self) -> None:
+        close_renderers(self)
 
 
 class StreamAECEnv(parallel_to_aec_wrapper):
