@@ -114,8 +114,10 @@ clean:
 	find . -path ./.git -prune -o -name __pycache__ -type d -print | xargs rm -rf
 
 # The benchmark's baseline table (docs/baselines.md): SB3 PPO, BC and DAgger (3 seeds each),
-# IPPO/MAPPO when agents.marl_torchrl is importable, the MPC and the NF alone, on the test
+# IPPO/MAPPO (TorchRL), the MPC and the NF alone, on the test
 # split of converging-4 and random-6, alone and in the safety filter. Resumable (out/baselines).
-# In TorchRL's venv, with the rl extra: every row, IPPO/MAPPO included.
+# In TorchRL's venv, with the rl extra: every row, IPPO/MAPPO included (the table refuses to
+# run without them). BASELINES_ARGS=--restart empties out/baselines of another build first.
+BASELINES_ARGS ?=
 baselines: $(TORCH_VENV)/.installed
-	$(TORCH_VENV)/bin/python -m agents.baselines_table --write
+	$(TORCH_VENV)/bin/python -m agents.baselines_table --write $(BASELINES_ARGS)

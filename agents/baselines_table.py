@@ -3,7 +3,7 @@ the test split alone and inside the safety filter, next to the MPC and the NF al
 
     python -m agents.baselines_table --write          # train, score, write docs/baselines.md
     python -m agents.baselines_table --quick          # a tiny budget (the tests' plumbing)
-    make baselines                                     # the first command
+    make baselines                                     # the first, in TorchRL's venv (.venv-torch)
 
 What it does, per task of ``TASKS`` (``atc_nf_env.benchmark``'s converging-4 and random-6):
 
@@ -17,8 +17,11 @@ What it does, per task of ``TASKS`` (``atc_nf_env.benchmark``'s converging-4 and
      episodes, then ``dagger_iterations`` DAgger iterations of ``dagger_episodes`` learner
      episodes labelled by the MPC); one imitation run per seed gives both models (``bc`` is
      its first stage), its training seeds start at ``10 000 + 10⁶ · seed``;
-   * ``ippo`` and ``mappo``: ``agents.marl_torchrl.train`` when that module is importable
-     (skipped with a note in the table otherwise).
+   * ``ippo`` and ``mappo``: ``agents.marl_torchrl.train``, which needs TorchRL: run the
+     table in TorchRL's venv (``make baselines`` builds ``.venv-torch`` and runs it there).
+     A command that cannot run a row it is asked for fails before training anything,
+     naming the missing library; ``--skip-unavailable`` leaves such rows out with a note
+     instead, for plumbing checks only (``--write`` refuses it).
 
 3. **Scoring**: every model on the test split's first ``test_runs`` seeds
    (``atc_nf_env.benchmark.score_card``), alone and inside ``atc_nf_env.shield.SafetyFilter``,
@@ -274,6 +277,29 @@ def torchrl_trainer() -> tuple[Any, str | None]:
     return module, None
 
 
+#: Where the rows that need TorchRL run: the venv ``make baselines`` builds.
+TORCHRL_VENV_HINT = ("run the table in TorchRL's venv: `make baselines` (builds .venv-torch from "
+                     "examples/requirements-torch.txt), or .venv-torch/bin/python -m agents.baselines_table ...")
+
+
+class RowNotRun(RuntimeError):
+    """A row of the table cannot be run here (a library missing, no model trained)."""
+
+
+def unavailable_rows(algorithms: Sequence[str], skip_unavailable: bool = False) -> dict[str, str]:
+    """The learners of ``algorithms`` that cannot run here, each with why: empty, or (with
+    ``skip_unavailable``) the rows to leave out with a note. RowNotRun otherwise."""
+    wanted = [a for a in algorithms if a in TORCHRL_ALGORITHMS]
+    if not wanted:
+        return {}
+    module, why_not = torchrl_trainer()
+    if module is not None:
+        return {}
+    if not skip_unavailable:
+        raise RowNotRun(f"the rows {', '.join(wanted)} need TorchRL, and here {why_not}; {TORCHRL_VENV_HINT}")
+    return {a: str(why_not) for a in wanted}
+
+
 def _torchrl_installed() -> bool:
     import importlib.util
 
@@ -393,23 +419,49 @@ def train_torchrl(algorithm: str, task: str, seed: int, budget: Budget, folder: 
     meta_path = folder / "run" / "meta.json"
     meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
     done_periods = int(meta.get("frames", periods))
-    curve = None
-    curve_path = folder / "run" / "curve.csv"
-    if curve_path.exists():
-        import csv
-
-        with curve_path.open() as handle:
-            columns = next(csv.reader(handle), [])
-        y_key = next((c for c in columns if "return" in c), None)
-        if columns and y_key:
-            curve = _curve_csv(curve_path, columns[0], y_key)
-            if curve is not None and columns[0] == "frames":  # world periods -> aircraft decisions
-                curve["x"] = [x * n_aircraft for x in curve["x"]]
+    curve = torchrl_curve(folder / "run" / "curve.csv", meta, n_aircraft)
     return {algorithm: {"model": str(model), "frames": done_periods * n_aircraft, "frames_unit": "frames",
                         "wall_s": round(float(meta.get("wall_s", wall)), 1),
                         "command": f"{TORCHRL_MODULE}.train({algorithm!r}, {task!r}, {seed}, {periods}, "
                                    f"{str(folder / 'run')!r})",
                         "curve": curve, "curve_axes": ["frames", "mean return per aircraft (training)"]}}
+
+
+def torchrl_curve(path: Path, meta: dict[str, Any], n_aircraft: int) -> dict[str, list[float]] | None:
+    """The learning curve of a TorchRL run against aircraft decisions (the table's frames).
+
+    ``agents.marl_torchrl`` writes one row per evaluation point with ``batch`` (collected
+    batches so far) and ``frames`` (world periods so far) and the mean training return. The
+    x axis is ``frames`` × aircraft, or, for a curve without ``frames``, ``batch`` × the
+    batch's world periods (``num_envs × steps_per_batch`` of the run's ``meta["ppo"]``) ×
+    aircraft. None when the run wrote no curve.
+
+    Raises:
+        ValueError: a curve with neither column, or with only ``batch`` and a meta that
+            lacks the batch's size.
+    """
+    import csv
+
+    if not path.exists():
+        return None
+    with path.open() as handle:
+        columns = next(csv.reader(handle), [])
+    y_key = next((c for c in columns if "return" in c), None)
+    if y_key is None:
+        raise ValueError(f"{path}: no column of training returns (columns: {columns})")
+    if "frames" in columns:
+        curve, periods_per_x = _curve_csv(path, "frames", y_key), 1
+    elif "batch" in columns:
+        ppo = meta.get("ppo") or {}
+        if not all(isinstance(ppo.get(k), int) and ppo[k] >= 1 for k in ("num_envs", "steps_per_batch")):
+            raise ValueError(f"{path}: a curve by batch, and the run's meta.json gives no num_envs and "
+                             f"steps_per_batch (its ppo block: {ppo}) to count a batch's frames")
+        curve, periods_per_x = _curve_csv(path, "batch", y_key), ppo["num_envs"] * ppo["steps_per_batch"]
+    else:
+        raise ValueError(f"{path}: no frames or batch column to plot against (columns: {columns})")
+    if curve is not None:
+        curve["x"] = [x * periods_per_x * n_aircraft for x in curve["x"]]  # world periods -> aircraft decisions
+    return curve
 
 
 def flyable(model: str) -> str:
@@ -665,14 +717,19 @@ def plot_curves(task: str, curves: dict[str, list[dict[str, Any]]], axes_labels:
 
 
 def build_table(budget: Budget, out: Path, tasks: Sequence[str], algorithms: Sequence[str],
-                figures: Path, workers: int | None = None) -> dict[str, Any]:
-    """Train what is missing, score what is missing, aggregate; returns the table's record."""
+                figures: Path, workers: int | None = None, skip_unavailable: bool = False) -> dict[str, Any]:
+    """Train what is missing, score what is missing, aggregate; returns the table's record.
+
+    Raises:
+        RowNotRun: before any training, when a row needs TorchRL and it is missing (unless
+            ``skip_unavailable``: then that row only says why); after training, when a
+            learner trained no model.
+    """
     started = time.perf_counter()
+    skipped = unavailable_rows(algorithms, skip_unavailable)
+    runnable = [a for a in algorithms if a not in skipped]
     manifest = open_folder(out, budget, restart=False)
     build = manifest["build"]
-    torchrl, why_not = torchrl_trainer()
-    runnable = [a for a in algorithms if a not in TORCHRL_ALGORITHMS or torchrl is not None]
-    skipped = {a: why_not for a in algorithms if a not in runnable}
     model_workers = 1  # a learned model flies in microseconds: worker processes would only add start-up
     mpc_workers = workers or budget.mpc_workers
     summaries: list[dict[str, Any]] = []
@@ -693,16 +750,15 @@ def build_table(budget: Budget, out: Path, tasks: Sequence[str], algorithms: Seq
         for algorithm in algorithms:
             if algorithm in skipped:
                 summaries.append(row_summary(Row(task, algorithm, [], "–", [], [], [],
-                                                 note=f"not run: {skipped[algorithm]}")))
+                                                 note=f"left out (--skip-unavailable): {skipped[algorithm]}")))
                 continue
             records = [done["models"][algorithm] for unit, done in done_by_unit.items()
                        if unit.task == task and algorithm in unit.algorithms and algorithm in done["models"]]
             seeds = [unit.seed for unit, done in done_by_unit.items()
                      if unit.task == task and algorithm in unit.algorithms and algorithm in done["models"]]
             if not records:
-                summaries.append(row_summary(Row(task, algorithm, [], "–", [], [], [],
-                                                 note="not run: no model trained")))
-                continue
+                raise RowNotRun(f"{algorithm} on {task}: no training seed produced a model "
+                                f"(see {out / 'train' / task})")
             alone = [score(flyable(r["model"]), Path(r["model"]).stem, task, False, budget, out, build,
                            model_workers) for r in records]
             shielded = [score(flyable(r["model"]), Path(r["model"]).stem, task, True, budget, out, build,
@@ -756,6 +812,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--restart", action="store_true", help="empty --out first (results of another build or budget)")
     parser.add_argument("--workers", type=int, default=None, help="processes of the MPC's studies (default: the budget's)")
     parser.add_argument("--write", action="store_true", help="write the table into --doc and the curves into --figures")
+    parser.add_argument("--skip-unavailable", action="store_true",
+                        help="leave out, with a note, the rows whose library (TorchRL) is missing, instead of failing; "
+                             "a plumbing check, never a result: --write refuses it")
     parser.add_argument("--doc", type=Path, default=DOC, help="the results page whose baselines section --write replaces")
     parser.add_argument("--figures", type=Path, default=None,
                         help="folder of the learning-curve figures (default: docs/figures with --write, else OUT/figures)")
@@ -775,11 +834,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                 raise ValueError(f"--algorithms: {algorithm!r} unknown; allowed: {', '.join(known)}")
         if not tasks or not algorithms:
             raise ValueError("--tasks and --algorithms need at least one name each")
+        if args.write and args.skip_unavailable:
+            raise ValueError("--write with --skip-unavailable: a written table has every row it names; drop "
+                             "--skip-unavailable (or --write), or name fewer --algorithms")
+        unavailable_rows(algorithms, args.skip_unavailable)  # before --restart empties anything
         if args.restart:
             open_folder(out, budget, restart=True)
         figures = args.figures or (FIGURES if args.write else out / "figures")
-        record = build_table(budget, out, tasks, algorithms, figures, args.workers)
-    except ValueError as error:
+        record = build_table(budget, out, tasks, algorithms, figures, args.workers, args.skip_unavailable)
+    except (ValueError, RowNotRun) as error:
         print(f"baselines_table: error: {error}", file=sys.stderr)
         return 2
     command = "python -m agents.baselines_table " + shlex.join(list(argv) if argv is not None else sys.argv[1:])
