@@ -32,6 +32,11 @@ from typing import Sequence
 import numpy as np
 from numba import njit
 
+from atc_nf_env import compile_cache
+
+# Before any @njit: numba picks a function's cache locator when its decorator runs.
+compile_cache.install()
+
 IDENTITY, TANH, RELU = 0, 1, 2
 #: Output transforms of the action: clip to [-1, 1] (PPO's Gaussian mean) or tanh (SAC).
 CLIP, SQUASH = 0, 1

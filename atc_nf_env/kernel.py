@@ -174,6 +174,10 @@ from atc_nf_env.nf import (
     P_U_MIN,
 )
 from atc_nf_env.units import SECONDS_PER_HOUR
+from atc_nf_env import compile_cache
+
+# Before any @njit: numba picks a function's cache locator when its decorator runs.
+compile_cache.install()
 
 # State fields.
 S_X = 0  # position x, nm

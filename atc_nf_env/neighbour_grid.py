@@ -35,6 +35,10 @@ import numpy as np
 from numba import njit
 
 from atc_nf_env.nf import FAST_MATH_FLAGS, NO_REFERENCE_COUNTS
+from atc_nf_env import compile_cache
+
+# Before any @njit: numba picks a function's cache locator when its decorator runs.
+compile_cache.install()
 
 # Rows of the grid's scratch, from its first row.
 GRID_X = 0  # position x of each aircraft now, nm (filled by the caller)

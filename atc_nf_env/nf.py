@@ -41,6 +41,11 @@ import math
 import numpy as np
 from numba import njit
 
+from atc_nf_env import compile_cache
+
+# Before any @njit: numba picks a function's cache locator when its decorator runs.
+compile_cache.install()
+
 #: Fast-math flags that cannot change a finite result: no NaN, no inf, no signed zero.
 #: Reassociation, contraction into FMA and approximate functions are left out, because
 #: they let the compiler round differently in different call sites, and a world must

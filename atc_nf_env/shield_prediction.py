@@ -40,6 +40,10 @@ from atc_nf_env.kernel import (
 )
 from atc_nf_env.nf import FAST_MATH_FLAGS
 from atc_nf_env.units import SECONDS_PER_HOUR
+from atc_nf_env import compile_cache
+
+# Before any @njit: numba picks a function's cache locator when its decorator runs.
+compile_cache.install()
 
 #: ``PlanPredictor.first_safe`` when no candidate is safe.
 NONE_SAFE = -1

@@ -29,6 +29,10 @@ import math
 from numba import njit
 
 from atc_nf_env.nf import FAST_MATH_FLAGS
+from atc_nf_env import compile_cache
+
+# Before any @njit: numba picks a function's cache locator when its decorator runs.
+compile_cache.install()
 
 # Cephes atan.c (double precision): atan(x) = x + x³ P(x²)/Q(x²) on |x| <= 0.66, with the
 # arguments beyond reduced by π/4 and π/2.

@@ -252,6 +252,10 @@ from atc_nf_env.scenarios import Scenario
 from atc_nf_env.shield import APPROACH_RADIUS_NM, APPROACH_TURN_RAD
 from atc_nf_env.simulation import WorldView, initial_state
 from atc_nf_env.units import AIRSPEED_NOMINAL_KT, DECISION_PERIOD_S, KT_PER_MPS, SECONDS_PER_HOUR, WIND_SIGMA_MPS
+from atc_nf_env import compile_cache
+
+# Before any @njit: numba picks a function's cache locator when its decorator runs.
+compile_cache.install()
 
 WIND_MODELS = ("none", "sampled", "estimated")
 PROPOSALS = ("homing", "paper")

@@ -20,9 +20,6 @@ LOGS=out/regenerate
 mkdir -p "$LOGS"
 step=0
 if ((FROM == 1)); then
-    # numba keys a cached function on its own file only: a caller's cache (the safety
-    # filter's prediction, the envs) keeps a callee compiled from an older kernel.py.
-    find atc_nf_env baselines agents -name '*.nbi' -delete -o -name '*.nbc' -delete
     # A study refuses to resume runs flown by another build: the last regeneration's run
     # folders are set aside (out/previous/, replaced each time), not resumed.
     if [[ $WHAT == all || $WHAT == studies ]]; then

@@ -29,6 +29,10 @@ from numba import njit
 
 from atc_nf_env.envs.coerce import coerce_settings
 from atc_nf_env.kernel import FLYING, S_DEST_X, S_DEST_Y, S_STATUS, S_WP_X, S_WP_Y, S_X, S_Y
+from atc_nf_env import compile_cache
+
+# Before any @njit: numba picks a function's cache locator when its decorator runs.
+compile_cache.install()
 
 #: Distance kept between a clamped waypoint and the edge of the allowed disk, nm.
 WORKSPACE_MARGIN_NM: float = 1.0

@@ -36,6 +36,10 @@ from atc_nf_env.nf import P_DT
 from atc_nf_env.scenarios import check_seed
 from atc_nf_env.simulation import Simulation
 from atc_nf_env.units import DECISION_PERIOD_S
+from atc_nf_env import compile_cache
+
+# Before any @njit: numba picks a function's cache locator when its decorator runs.
+compile_cache.install()
 
 #: CPU time of the compiled period's first compilation on an idle core, s (its first step
 #: says so when numba's cache does not hold it: ``kernel.compile_notice``).

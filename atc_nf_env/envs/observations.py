@@ -61,6 +61,10 @@ from atc_nf_env.kernel import (
     S_Y,
 )
 from atc_nf_env.units import AIRSPEED_NOMINAL_KT
+from atc_nf_env import compile_cache
+
+# Before any @njit: numba picks a function's cache locator when its decorator runs.
+compile_cache.install()
 
 #: Unit of every distance in the observations, nm.
 DISTANCE_SCALE_NM: float = 100.0

@@ -28,6 +28,10 @@ from numba import njit
 
 from atc_nf_env.envs.coerce import coerce_settings
 from atc_nf_env.kernel import ARRIVED, LEFT, S_DEST_X, S_DEST_Y, S_STATUS, S_X, S_Y, Trace
+from atc_nf_env import compile_cache
+
+# Before any @njit: numba picks a function's cache locator when its decorator runs.
+compile_cache.install()
 
 
 @dataclass(frozen=True)
