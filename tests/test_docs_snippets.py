@@ -39,6 +39,10 @@ TIMEOUT_S = 600
 #: Commands run with fewer runs or scenarios than written: the same code path, a fraction
 #: of the time. Written command -> (command run, why).
 SCALED: dict[str, tuple[str, str]] = {
+    "atc-nf fly --policy nf-leg --scenario stream-30-60min --shield --seed 1 --extractions 500": (
+        "atc-nf fly --policy nf-leg --scenario stream-30-20min --shield --seed 1 --extractions 100",
+        "an hour of stream inside the filter, its per-cluster MPC fallback included, takes half a minute; 20 min "
+        "take the same options through the same fallback"),
     "atc-nf evaluate --policy mpc --scenario converging-4 --runs 1000 --out runs.jsonl": (
         "atc-nf evaluate --policy mpc --scenario converging-4 --runs 2 --workers 1 --out runs.jsonl --no-progress",
         "1000 MPC episodes take minutes; 2 runs in one process go through the same file and summary (the README's "
