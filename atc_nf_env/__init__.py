@@ -2,14 +2,14 @@
 wind, as Gymnasium and PettingZoo environments.
 
     import gymnasium as gym
-    import atc_nf_env                      # registers "atc_nf_env/Encounter-v0"
+    import atc_nf_env                      # registers "atc_nf_env/Encounter-v1"
 
-    env = gym.make("atc_nf_env/Encounter-v0", scenario="converging-4")
-    vec = gym.make_vec("atc_nf_env/Encounter-v0", num_envs=256)   # one kernel call per step
+    env = gym.make("atc_nf_env/Encounter-v1", scenario="converging-4")
+    vec = gym.make_vec("atc_nf_env/Encounter-v1", num_envs=256)   # one kernel call per step
     par = atc_nf_env.parallel_env(scenario="converging-6")        # PettingZoo ParallelEnv
     aec = atc_nf_env.env(scenario="converging-6")                 # PettingZoo AEC
 
-``gym.make("atc_nf_env:atc_nf_env/Encounter-v0")`` works without importing first.
+``gym.make("atc_nf_env:atc_nf_env/Encounter-v1")`` works without importing first.
 The environment modules are imported on first use, so ``import atc_nf_env`` stays light.
 """
 
@@ -17,7 +17,12 @@ from __future__ import annotations
 
 from typing import Any
 
-ENV_ID = "atc_nf_env/Encounter-v0"
+ENV_ID = "atc_nf_env/Encounter-v1"
+#: The Gymnasium ID of the traffic-stream env (``StreamEnv``; ``scenario="stream-R..."``).
+STREAM_ENV_ID = "atc_nf_env/Stream-v1"
+#: IDs of dynamics no longer flown, each registered so that making it says what replaced it
+#: (``atc_nf_env.envs.retired``).
+RETIRED_ENV_IDS: tuple[str, ...] = ("atc_nf_env/Encounter-v0",)
 
 
 def _register() -> None:
@@ -29,6 +34,14 @@ def _register() -> None:
             entry_point="atc_nf_env.envs.centralized:EncounterEnv",
             vector_entry_point="atc_nf_env.envs.vector:EncounterVectorEnv",
         )
+    if STREAM_ENV_ID not in gymnasium.registry:
+        # Its vector form is Gymnasium's SyncVectorEnv (each stream world steps on its own).
+        gymnasium.register(id=STREAM_ENV_ID, entry_point="atc_nf_env.envs.streams:StreamEnv",
+                           kwargs={"scenario": "stream-30"})
+    for retired in RETIRED_ENV_IDS:
+        if retired not in gymnasium.registry:
+            gymnasium.register(id=retired, entry_point="atc_nf_env.envs.retired:encounter_v0",
+                               vector_entry_point="atc_nf_env.envs.retired:encounter_v0")
 
 
 _register()
@@ -55,4 +68,4 @@ def __dir__() -> list[str]:
     return sorted([*globals(), *_LAZY])
 
 
-__all__ = ["ENV_ID", *_LAZY]
+__all__ = ["ENV_ID", "RETIRED_ENV_IDS", "STREAM_ENV_ID", *_LAZY]

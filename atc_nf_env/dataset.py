@@ -1,5 +1,5 @@
 """Offline datasets in Minari's format: a policy flying a benchmark task, recorded
-through the centralized environment ``atc_nf_env/Encounter-v0``.
+through the centralized environment ``atc_nf_env/Encounter-v1``.
 
     atc-nf dataset --policy mpc --task converging-4 --episodes 100 --dataset-id atc-nf/converging-4/mpc-v0
 

@@ -633,7 +633,7 @@ def save_animation(
       in force and the wind from the result (a traffic stream's: its StreamScenario, the
       flights in their slots as ``EpisodeResult.slot_flight`` says);
     - an environment made with ``render_mode="rgb_array"`` (``atc_nf_env.parallel_env``
-      or ``gym.make("atc_nf_env/Encounter-v0")``): one episode is played from
+      or ``gym.make("atc_nf_env/Encounter-v1")``): one episode is played from
       ``reset(seed=seed)`` with ``policy`` (obs -> actions, as the env takes them;
       default: every action (0, 0), a waypoint 100 nm ahead on the line to the
       destination) and a frame is taken after the reset and after every step.

@@ -8,7 +8,7 @@ actions in [-1, 1]² for every live agent, reset when the episode ends (resets i
   for every aircraft);
 - PettingZoo AEC ``env``: cycles per second (one cycle = every live agent acts once,
   i.e. one decision period);
-- the centralized ``gym.make("atc_nf_env/Encounter-v0")``: steps per second;
+- the centralized ``gym.make("atc_nf_env/Encounter-v1")``: steps per second;
 - the bare kernel: ``kernel.advance`` flying one world of the same scenario one 300 s
   period per call, with random actions mapped to waypoints as the envs map them and the
   envs' 36-period limit (so it flies what the envs fly): periods per second.

@@ -8,7 +8,7 @@ seed of s, the MPC at K = 1000):
   each aircraft saw and the MPC's waypoint, and clones it (no DAgger, no mirroring of
   clockwise episodes: the dataset cannot mirror, see ``examples/bc_from_minari.py``);
 - **offline**: ``atc-nf dataset`` records the same seeds as a Minari dataset (through
-  ``atc_nf_env/Encounter-v0``), and ``examples/bc_from_minari.py`` clones it, with the
+  ``atc_nf_env/Encounter-v1``), and ``examples/bc_from_minari.py`` clones it, with the
   same model, loss, epochs and torch seed.
 
 Both models are scored on the test split of converging-4 (``--runs`` runs), alone and in

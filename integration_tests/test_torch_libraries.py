@@ -35,10 +35,10 @@ def test_aec_form_rolls_out() -> None:
 
 
 def test_centralized_env_through_gym_env_and_the_vector_env_through_gym_wrapper() -> None:
-    env = GymEnv("atc_nf_env/Encounter-v0", scenario="converging-4")
+    env = GymEnv("atc_nf_env/Encounter-v1", scenario="converging-4")
     check_env_specs(env)
     assert env.rollout(5)["next", "reward"].shape == (5, 1)
-    vec = GymWrapper(gym.make_vec("atc_nf_env/Encounter-v0", num_envs=4, max_cycles=3,
+    vec = GymWrapper(gym.make_vec("atc_nf_env/Encounter-v1", num_envs=4, max_cycles=3,
                                   autoreset_mode=gym.vector.AutoresetMode.SAME_STEP))
     rollout = vec.rollout(8, break_when_any_done=False)
     assert rollout["next", "reward"].shape == (4, 8, 1)

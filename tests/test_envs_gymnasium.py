@@ -1,4 +1,4 @@
-"""The centralized Gymnasium env (``atc_nf_env/Encounter-v0``), its native vector env,
+"""The centralized Gymnasium env (``atc_nf_env/Encounter-v1``), its native vector env,
 the action helpers and rendering."""
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from atc_nf_env.episode import episode_wind_kt
 from atc_nf_env.scenarios import make_scenario
 from atc_nf_env.simulation import initial_state
 
-ENV_ID = "atc_nf_env/Encounter-v0"
+ENV_ID = "atc_nf_env/Encounter-v1"
 
 
 def zeros(env: gym.Env) -> np.ndarray:

@@ -43,7 +43,7 @@ def test_aec_api_test_and_seed_test() -> None:
 
 def test_metadata_and_forms() -> None:
     par = atc_nf_env.parallel_env()
-    assert par.metadata["name"] == "atc_nf_env_v0"
+    assert par.metadata["name"] == "atc_nf_env_v1"
     assert par.metadata["render_modes"] == ["human", "rgb_array"]
     assert par.metadata["is_parallelizable"] is True
     assert par.metadata["render_fps"] > 0

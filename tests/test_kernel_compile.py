@@ -88,7 +88,7 @@ def test_the_first_env_step_announces_its_compilation_and_a_warm_one_does_not(tm
     code = """
         import gymnasium as gym
         import atc_nf_env
-        env = gym.make("atc_nf_env/Encounter-v0", scenario="converging-3")
+        env = gym.make("atc_nf_env/Encounter-v1", scenario="converging-3")
         env.reset(seed=0)
         env.step(env.action_space.sample())
         env.step(env.action_space.sample())

@@ -226,7 +226,7 @@ def _envs():
 
     yield "EncounterEnv", lambda: EncounterEnv(scenario="converging-3")
     yield "parallel_env", lambda: atc_nf_env.parallel_env(scenario="converging-3")
-    yield "vector", lambda: gym.make_vec("atc_nf_env/Encounter-v0", num_envs=2, scenario="converging-3")
+    yield "vector", lambda: gym.make_vec("atc_nf_env/Encounter-v1", num_envs=2, scenario="converging-3")
 
 
 @pytest.mark.parametrize("seed", [-1, True, 2**63, 2.0, "0", np.int64(-3)])

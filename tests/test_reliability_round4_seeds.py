@@ -24,7 +24,7 @@ from atc_nf_env.benchmark import SPLITS, STREAM_SPLITS, Split
 from atc_nf_env.envs import draw_episode_seed, drawn_seed_split
 from atc_nf_env.envs.vector import EncounterVectorEnv, make_sb3_vec_env
 
-ENV_ID = "atc_nf_env/Encounter-v0"
+ENV_ID = "atc_nf_env/Encounter-v1"
 ENCOUNTER = "random-3"  # a new layout every reset: the drawn seed reaches the scenario too
 STREAM = "stream-60-60min"  # a flight airborne at every reset: its info has the seed
 #: A test-split seed for the first reset: seeding there must not pull the draws after it

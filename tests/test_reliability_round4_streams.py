@@ -30,7 +30,7 @@ def test_an_explicit_180_min_limit_is_honoured_on_a_long_stream(make):
 def test_a_gym_stream_env_with_180_min_ends_at_180_min():
     import gymnasium as gym
 
-    env = gym.make("atc_nf_env/Encounter-v0", scenario="stream-2.5-300min", max_episode_minutes=180)
+    env = gym.make("atc_nf_env/Encounter-v1", scenario="stream-2.5-300min", max_episode_minutes=180)
     env.reset(seed=4)
     truncated, info = False, {}
     while not truncated:
@@ -124,7 +124,7 @@ def test_parallel_api_test_passes_with_resets_that_find_no_flight():
 def test_make_torchrl_env_refuses_a_stream_and_says_what_takes_one(scenario):
     from atc_nf_env.integrations.torchrl import make_torchrl_env
 
-    with pytest.raises(ValueError, match=r"traffic stream.*GymEnv\(\"atc_nf_env/Encounter-v0\""):
+    with pytest.raises(ValueError, match=r"traffic stream.*GymEnv\(\"atc_nf_env/Encounter-v1\""):
         make_torchrl_env(scenario=scenario)  # refused before torchrl is imported
 
 
@@ -141,7 +141,7 @@ def test_torchrl_gym_env_takes_a_stream_as_the_refusal_says():
     pytest.importorskip("torchrl")
     from torchrl.envs import GymEnv
 
-    env = GymEnv("atc_nf_env/Encounter-v0", scenario="stream-2.5-60min", max_cycles=4)
+    env = GymEnv("atc_nf_env/Encounter-v1", scenario="stream-2.5-60min", max_cycles=4)
     rollout = env.rollout(6, break_when_any_done=False)
     assert rollout["aircraft"].shape[1:] == (env.observation_spec["mask"].shape[-1], rollout["aircraft"].shape[-1])
     assert rollout["next", "truncated"].any()
@@ -223,7 +223,7 @@ def test_stream_envs_render_rgb_arrays(form):
 
     kwargs = {"scenario": "stream-2.5-60min", "render_mode": "rgb_array", "render_size_px": 128}
     if form == "gym":
-        env = gym.make("atc_nf_env/Encounter-v0", **kwargs)
+        env = gym.make("atc_nf_env/Encounter-v1", **kwargs)
     else:
         env = atc_nf_env.parallel_env(**kwargs) if form == "parallel" else atc_nf_env.env(**kwargs)
     env.reset(seed=6)

@@ -257,7 +257,7 @@ def test_gym_stream_env_masks_slots():
 
     import atc_nf_env  # noqa: F401 (registers the id)
 
-    env = gym.make("atc_nf_env/Encounter-v0", scenario="stream-60-30min")
+    env = gym.make("atc_nf_env/Encounter-v1", scenario="stream-60-30min")
     check_env(env.unwrapped, skip_render_check=True)
     obs, info = env.reset(seed=3)
     slots = default_max_airborne(60.0)
@@ -270,7 +270,7 @@ def test_gym_stream_env_masks_slots():
         assert not terminated
     assert info["stream"]["flights_entered"] == int((info["slot_flight"] >= 0).sum()) + \
         info["stream"]["flights_completed"] + info["stream"]["flights_left_workspace"]
-    vec = gym.make_vec("atc_nf_env/Encounter-v0", num_envs=2, scenario="stream-60-30min")
+    vec = gym.make_vec("atc_nf_env/Encounter-v1", num_envs=2, scenario="stream-60-30min")
     batch, _ = vec.reset(seed=0)
     assert batch["mask"].shape == (2, slots)
     vec.close()

@@ -1,5 +1,5 @@
 """The environments: PettingZoo (``parallel_env``, ``env``, ``raw_env``), the centralized
-Gymnasium env (``atc_nf_env/Encounter-v0``) and its native vector env.
+Gymnasium env (``atc_nf_env/Encounter-v1``) and its native vector env.
 
 Every environment takes the same keyword arguments, checked here (``EnvConfig``):
 

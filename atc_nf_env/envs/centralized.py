@@ -1,4 +1,4 @@
-"""The centralized Gymnasium environment ``atc_nf_env/Encounter-v0`` and the one-world
+"""The centralized Gymnasium environment ``atc_nf_env/Encounter-v1`` and the one-world
 episode logic (``EncounterWorld``) that it shares with the PettingZoo env."""
 
 from __future__ import annotations
@@ -577,7 +577,7 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Arguments
 
-    ``gym.make("atc_nf_env/Encounter-v0", scenario="converging-4", wind_sigma=5.17,
+    ``gym.make("atc_nf_env/Encounter-v1", scenario="converging-4", wind_sigma=5.17,
     render_mode=None, max_aircraft=None, n_neighbours=4, max_episode_minutes=None,
     max_cycles=None, expose_wind=False, action_mapping=None, reward_weights=None,
     config=None, render_size_px=512)``; see ``atc_nf_env.envs`` for each. Unknown
@@ -600,6 +600,11 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Version History
 
+    * v1: the kernel's integration among neighbours changed (θ̇_nh at its true rate inside
+      sub-steps, error control of steps with a pair within the sensing radius, guard 9's
+      right-hand rule retuned; CHANGELOG): every trajectory with two aircraft within the
+      12-nm sensing radius changed. ``atc_nf_env/Encounter-v0`` is retired; making it
+      raises an error that names v1.
     * v0: initial version.
     """
 
@@ -614,9 +619,9 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
         return super().__new__(cls)
 
     def __init__(self, **kwargs: Any) -> None:
-        cfg = EnvConfig.from_kwargs(kwargs, "atc_nf_env/Encounter-v0")
+        cfg = EnvConfig.from_kwargs(kwargs, "atc_nf_env/Encounter-v1")
         self.cfg = cfg
-        self.world = EncounterWorld(cfg, "atc_nf_env/Encounter-v0")
+        self.world = EncounterWorld(cfg, "atc_nf_env/Encounter-v1")
         self.render_mode = cfg.render_mode
         m = self.world.n_slots
         self.n_slots = m
@@ -656,10 +661,10 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
         """
         world = self.world
         if not world.started:
-            raise ValueError("atc_nf_env/Encounter-v0: step() before reset(); call reset() first")
+            raise ValueError("atc_nf_env/Encounter-v1: step() before reset(); call reset() first")
         if world.over:
             raise ValueError(
-                "atc_nf_env/Encounter-v0: the episode is over (every aircraft has arrived or left, or the "
+                "atc_nf_env/Encounter-v1: the episode is over (every aircraft has arrived or left, or the "
                 "time limit passed); call reset() before step()"
             )
         try:
@@ -671,7 +676,7 @@ class EncounterEnv(gym.Env[np.ndarray, np.ndarray]):
         except (TypeError, ValueError):
             ok = False
         if not ok:  # say what is wrong with it, or convert it (an object array of numbers)
-            validate_step_actions(action, (self.n_slots, 2), "atc_nf_env/Encounter-v0")
+            validate_step_actions(action, (self.n_slots, 2), "atc_nf_env/Encounter-v1")
             array = np.ascontiguousarray(action, dtype=np.float64)
         world.step(array[: world.n_aircraft])
         terminated = world.done

@@ -113,11 +113,16 @@ class ATCParallelEnv(ParallelEnv):
 
     ## Version History
 
+    * v1: the kernel's integration among neighbours changed (θ̇_nh at its true rate inside
+      sub-steps, error control of steps with a pair within the sensing radius, guard 9's
+      right-hand rule retuned; CHANGELOG): every trajectory with two aircraft within the
+      12-nm sensing radius changed. ``atc_nf_env/Encounter-v0`` is retired; making it
+      raises an error that names v1.
     * v0: initial version.
     """
 
     metadata = {
-        "name": "atc_nf_env_v0",
+        "name": "atc_nf_env_v1",
         "render_modes": ["human", "rgb_array"],
         "is_parallelizable": True,
         "render_fps": 4,

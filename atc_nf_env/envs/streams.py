@@ -1,6 +1,7 @@
 """Environments of traffic streams (``scenario="stream-R"``): aircraft join and leave.
 
-``parallel_env(scenario="stream-60")``, ``env(...)`` and ``gym.make(ENV_ID,
+``parallel_env(scenario="stream-60")``, ``env(...)``, ``gym.make("atc_nf_env/Stream-v1",
+scenario="stream-60")`` (``STREAM_ENV_ID``; stream-30 by default) and ``gym.make(ENV_ID,
 scenario="stream-60")`` build the classes here; the other keyword arguments are the
 common ones (``atc_nf_env.envs.EnvConfig``), with these differences:
 
@@ -33,6 +34,11 @@ maps slots to flights (-1: empty), and ``info["stream"]`` holds the stream's met
 the episode's end.
 
 Units: nm, kt, s.
+
+Version History: v1 (the PettingZoo name ``atc_nf_stream_v1``, the Gymnasium ID
+``atc_nf_env/Stream-v1``): the kernel's integration among neighbours of
+``atc_nf_env/Encounter-v1``; v0: the stream envs before it, reached through
+``atc_nf_env/Encounter-v0``.
 """
 
 from __future__ import annotations
@@ -73,6 +79,11 @@ class StreamWorld:
     decision period per step, with each period's rewards and ends per slot."""
 
     def __init__(self, cfg: EnvConfig, where: str) -> None:
+        if not is_stream(cfg.scenario):
+            raise ValueError(
+                f"{where}: scenario = {cfg.scenario!r} is not a traffic stream; allowed: 'stream-R', "
+                "'stream-R-Dmin' or a StreamScenario (an encounter: atc_nf_env/Encounter-v1, parallel_env)"
+            )
         self.cfg = cfg
         self.spec = cfg.scenario
         template = cfg.scenario if isinstance(cfg.scenario, StreamScenario) else make_scenario(cfg.scenario, seed=0)
@@ -198,7 +209,7 @@ def _agent_name(flight: int) -> str:
 class StreamParallelEnv(ParallelEnv):
     """The PettingZoo parallel env of a traffic stream (see the module docstring)."""
 
-    metadata = {"name": "atc_nf_stream_v0", "render_modes": list(RENDER_MODES), "is_parallelizable": True,
+    metadata = {"name": "atc_nf_stream_v1", "render_modes": list(RENDER_MODES), "is_parallelizable": True,
                 "render_fps": 4}
 
     def __init__(self, **kwargs: Any) -> None:

@@ -1,7 +1,7 @@
-"""The native vector env: B worlds of ``atc_nf_env/Encounter-v0`` stepped in one kernel
+"""The native vector env: B worlds of ``atc_nf_env/Encounter-v1`` stepped in one kernel
 call, and adapters for Stable-Baselines3.
 
-- ``EncounterVectorEnv``: a Gymnasium ``VectorEnv`` (``gym.make_vec("atc_nf_env/Encounter-v0",
+- ``EncounterVectorEnv``: a Gymnasium ``VectorEnv`` (``gym.make_vec("atc_nf_env/Encounter-v1",
   num_envs=B)``), equal world for world to ``SyncVectorEnv`` over ``EncounterEnv``
   (same seeds, same observations, rewards and ends: the kernel is bit-identical across
   batch sizes), but one kernel call (numba, parallel over worlds) per step.
@@ -271,10 +271,10 @@ def _with_masks(info: dict[str, Any], mask: np.ndarray) -> dict[str, Any]:
 
 
 class EncounterVectorEnv(VectorEnv):
-    """B worlds of ``atc_nf_env/Encounter-v0`` (see ``EncounterEnv`` for the spaces,
+    """B worlds of ``atc_nf_env/Encounter-v1`` (see ``EncounterEnv`` for the spaces,
     rewards, episode ends and arguments) stepped in one kernel call.
 
-    ``gym.make_vec("atc_nf_env/Encounter-v0", num_envs=B, **kwargs)`` builds it. Seeds:
+    ``gym.make_vec("atc_nf_env/Encounter-v1", num_envs=B, **kwargs)`` builds it. Seeds:
     ``reset(seed=s)`` gives world b the episode seed s + b (as ``SyncVectorEnv`` does),
     so world b equals ``EncounterEnv`` reset with seed s + b, autoresets included.
 
@@ -303,17 +303,17 @@ class EncounterVectorEnv(VectorEnv):
 
         if cls is EncounterVectorEnv and is_stream(kwargs.get("scenario")):
             if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-                raise ValueError(f"atc_nf_env/Encounter-v0 (vector): num_envs = {num_envs!r}: must be an integer >= 1")
+                raise ValueError(f"atc_nf_env/Encounter-v1 (vector): num_envs = {num_envs!r}: must be an integer >= 1")
             from gymnasium.vector import SyncVectorEnv
 
             return SyncVectorEnv([lambda: StreamEnv(**kwargs)] * int(num_envs), autoreset_mode=autoreset_mode)
         return super().__new__(cls)
 
     def __init__(self, num_envs: int = 1, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **kwargs: Any) -> None:
-        cfg = EnvConfig.from_kwargs(kwargs, "atc_nf_env/Encounter-v0 (vector)")
+        cfg = EnvConfig.from_kwargs(kwargs, "atc_nf_env/Encounter-v1 (vector)")
         if cfg.render_mode is not None:
             raise ValueError(
-                f"atc_nf_env/Encounter-v0 (vector): render_mode = {cfg.render_mode!r}: the vector env does not "
+                f"atc_nf_env/Encounter-v1 (vector): render_mode = {cfg.render_mode!r}: the vector env does not "
                 "render; allowed: None (render a single env from gym.make instead)"
             )
         try:
@@ -326,7 +326,7 @@ class EncounterVectorEnv(VectorEnv):
                 "(or gymnasium.vector.AutoresetMode members)"
             )
         self.cfg = cfg
-        self.worlds = BatchWorlds(cfg, num_envs, "atc_nf_env/Encounter-v0 (vector)")
+        self.worlds = BatchWorlds(cfg, num_envs, "atc_nf_env/Encounter-v1 (vector)")
         self.num_envs = self.worlds.num_envs
         self.autoreset_mode = mode
         self.metadata = {**type(self).metadata, "autoreset_mode": mode}
@@ -373,12 +373,12 @@ class EncounterVectorEnv(VectorEnv):
         worlds = self.worlds
         b, m = self.num_envs, self.n_slots
         if not worlds.started:
-            raise ValueError("atc_nf_env/Encounter-v0 (vector): step() before reset(); call reset() first")
-        clipped_actions, clipped = validate_step_actions(actions, (b, m, 2), "atc_nf_env/Encounter-v0 (vector)")
+            raise ValueError("atc_nf_env/Encounter-v1 (vector): step() before reset(); call reset() first")
+        clipped_actions, clipped = validate_step_actions(actions, (b, m, 2), "atc_nf_env/Encounter-v1 (vector)")
         ended = worlds.terminated | worlds.truncated
         if self.autoreset_mode == AutoresetMode.DISABLED and ended.any():
             raise ValueError(
-                f"atc_nf_env/Encounter-v0 (vector): world(s) {np.flatnonzero(ended).tolist()} are over; reset them "
+                f"atc_nf_env/Encounter-v1 (vector): world(s) {np.flatnonzero(ended).tolist()} are over; reset them "
                 "with reset(options={'reset_mask': mask}) before step() (autoreset_mode is DISABLED)"
             )
         reset_now = self._autoreset.copy() if self.autoreset_mode == AutoresetMode.NEXT_STEP else np.zeros(b, dtype=bool)

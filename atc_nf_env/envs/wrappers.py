@@ -1,6 +1,6 @@
 """Wrappers for learning libraries that take only flat action vectors.
 
-``atc_nf_env/Encounter-v0`` takes one (distance, angle) pair per aircraft slot, a Box of
+``atc_nf_env/Encounter-v1`` takes one (distance, angle) pair per aircraft slot, a Box of
 shape (M, 2). Single-agent learners whose models emit one flat vector (RLlib's PPO,
 for one) need a Box of shape (2M,): ``FlattenActions`` is that view, nothing else.
 Gymnasium ships no action-flattening wrapper for Box spaces, hence this one.
@@ -22,7 +22,7 @@ class FlattenActions(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
     for aircraft slots 0, 1, ... (each in [-1, 1], mapped to a waypoint as in the wrapped
     env). ``env`` must have a Box action space of shape (M, 2) with M ≥ 1.
 
-        env = FlattenActions(gym.make("atc_nf_env/Encounter-v0", scenario="converging-4"))
+        env = FlattenActions(gym.make("atc_nf_env/Encounter-v1", scenario="converging-4"))
         env.action_space     # Box(-1.0, 1.0, (8,), float32)
     """
 

@@ -15,7 +15,7 @@ yourself (the versions tested are in ``examples/requirements-*.txt``).
 - ``atc_nf_env.integrations.supersuit``: SuperSuit's multi-process vector env for
   Stable-Baselines3, seedable by ``PPO(..., seed=...)``.
 
-``torchrl.envs.GymEnv("atc_nf_env/Encounter-v0")`` and ``GymWrapper(gym.make_vec(...))``
+``torchrl.envs.GymEnv("atc_nf_env/Encounter-v1")`` and ``GymWrapper(gym.make_vec(...))``
 take the centralized env as it is, and PettingZoo's own tests (``max_cycles_test``,
 ``api_test``, ``parallel_api_test``) take the PettingZoo forms. RLlib's single-agent
 algorithms need a flat action vector and an env their remote runners can build: use the

@@ -15,7 +15,7 @@ env runner, on any node of a Ray cluster, builds its env from the registered nam
 the same config scales from a laptop to a cluster (``examples/train_rllib.py``).
 
 Single-agent algorithms take the centralized env under ``"atc_nf_env_encounter"``:
-``gym.make("atc_nf_env/Encounter-v0", **env_config)`` with its (M, 2) action flattened to
+``gym.make("atc_nf_env/Encounter-v1", **env_config)`` with its (M, 2) action flattened to
 (2M,) (``atc_nf_env.envs.wrappers.FlattenActions``), since RLlib's default models emit
 one flat action vector. Passing the Gymnasium id itself to ``.environment()`` fails on
 remote env runners, which have not imported ``atc_nf_env``; the registered creator
@@ -57,7 +57,7 @@ def aec_env_creator(env_config: Mapping[str, Any] | None = None) -> Any:
 
 
 def centralized_env_creator(env_config: Mapping[str, Any] | None = None) -> Any:
-    """``gym.make("atc_nf_env/Encounter-v0", **env_config)`` with a flat Box(2M,) action
+    """``gym.make("atc_nf_env/Encounter-v1", **env_config)`` with a flat Box(2M,) action
     space (``FlattenActions``), for RLlib's single-agent algorithms."""
     import gymnasium as gym
 

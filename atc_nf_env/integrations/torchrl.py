@@ -15,14 +15,14 @@ docstring for the keys. With ``PettingZooWrapper``, aircraft leave the episode w
 arrive, so TorchRL needs ``use_mask=True`` (the group's ``mask`` says which are still
 flying), and ``done_on_any=False`` (its default for parallel envs resets the whole
 encounter as soon as the first aircraft arrives).
-The centralized env needs nothing: ``torchrl.envs.GymEnv("atc_nf_env/Encounter-v0")``.
+The centralized env needs nothing: ``torchrl.envs.GymEnv("atc_nf_env/Encounter-v1")``.
 torchrl is imported on use.
 
 Traffic streams (``scenario="stream-R"``) are refused by both, at construction, with a
 ValueError: their agents join and leave during an episode, which neither TorchRL's
 PettingZoo wrapper (it reads every possible agent's info at each reset) nor the batched
 encounter worlds take. A stream's Gymnasium env has fixed slots with a mask and goes
-through ``torchrl.envs.GymEnv("atc_nf_env/Encounter-v0", scenario="stream-60")``.
+through ``torchrl.envs.GymEnv("atc_nf_env/Encounter-v1", scenario="stream-60")``.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def refuse_streams(scenario: Any, where: str) -> None:
         raise ValueError(
             f"{where}: scenario = {scenario!r} is a traffic stream, whose agents join and leave; the TorchRL "
             "integrations (AtcNfBatchedEnv, make_torchrl_env) fly encounters only. For a stream use "
-            f"torchrl.envs.GymEnv(\"atc_nf_env/Encounter-v0\", scenario={scenario!r}) (fixed slots with a mask) "
+            f"torchrl.envs.GymEnv(\"atc_nf_env/Encounter-v1\", scenario={scenario!r}) (fixed slots with a mask) "
             "or atc_nf_env.parallel_env directly"
         )
 
