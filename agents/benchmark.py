@@ -107,17 +107,6 @@ def run(models: list[str], scenarios: list[str], runs: int, mpc_runs: int, out: 
     return results
 
 
-def breaches_after_unresolved(path: Path) -> dict[str, Any]:
-    """Of a shielded study's runs (``path``), those with a breach (an integration step
-    outside the envelope or a loss of separation), how many of them had the filter apply a
-    decision its own prediction found unsafe (``shield_unresolved`` > 0), and the range of
-    such decisions per breached run: whether the breaches are the filter's known
-    give-ups or escaped its prediction."""
-    from atc_nf_env.shield import breached_runs
-
-    return breached_runs(read_results(path)[1])
-
-
 def _fmt_latency(seconds: float) -> str:
     if seconds >= 1e-3:
         return f"{seconds * 1e3:.1f} ms"

@@ -522,9 +522,14 @@ def test_the_compiled_prediction_refuses_what_it_cannot_fly():
 
 
 def test_the_benchmark_tells_breaches_the_filter_gave_up_on_from_those_it_missed(tmp_path):
-    """``agents.benchmark.breaches_after_unresolved`` reads a shielded study's runs: a run
-    with a breach counts as given up when the filter applied a decision it predicted unsafe."""
-    from agents.benchmark import breaches_after_unresolved
+    """``shield.breached_runs`` over a shielded study's runs (as ``agents.benchmark`` and the
+    summaries count them): a run with a breach counts as given up when the filter applied
+    a decision it predicted unsafe."""
+    from atc_nf_env.evaluate import read_results
+    from atc_nf_env.shield import breached_runs
+
+    def breaches_after_unresolved(path):
+        return breached_runs(read_results(path)[1])
 
     path = tmp_path / "runs.jsonl"
     evaluate(Study(policy="nf", scenario="converging-3", max_time_s=600.0, shield=True), 2, out=path, workers=1,
