@@ -120,19 +120,22 @@ def _add_mpc_options(parser: argparse.ArgumentParser) -> None:
                        help="lazy flies a candidate only as far as the chain needs; exhaustive flies all K over "
                             "the whole horizon and measures every decision's feasible fraction; both pick the "
                             "same waypoints (default: lazy)")
-    group.add_argument("--sampling", choices=("joint", "clusters", "per-cluster"),
-                       help="joint samples every aircraft's waypoint; clusters, when the chain's start breaks a "
-                            "constraint, samples only the conflict cluster around the aircraft involved; per-cluster "
-                            "gives each independent conflict cluster of the start a chain of its own (for dense "
-                            "traffic; see docs/mpc.md) (default: joint)")
+    group.add_argument("--sampling", choices=("auto", "joint", "clusters", "per-cluster"),
+                       help="auto is joint on at most 6 aircraft and per-cluster with the progress rule (0.5 over 6 "
+                            "periods, unless --progress-fraction is given) on more and on streams; joint samples "
+                            "every aircraft's waypoint; clusters, when the chain's start breaks a constraint, samples "
+                            "only the conflict cluster around the aircraft involved; per-cluster gives each "
+                            "independent conflict cluster of the start a chain of its own (see docs/mpc.md) "
+                            "(default: auto)")
     group.add_argument("--cluster-radius-nm", type=float,
                        help="clusters, per-cluster: aircraft within this distance of one involved join its cluster "
                             "(default: 30)")
     group.add_argument("--progress-fraction", type=float,
                        help="the progress rule: an aircraft closing less than this share of a direct flight's "
                             "progress over --progress-periods periods is held on its recovery waypoint "
-                            "(default: off)")
-    group.add_argument("--progress-periods", type=_positive_int, help="the progress rule's window (default: 3)")
+                            "(default: off, or 0.5 where --sampling auto flies per-cluster)")
+    group.add_argument("--progress-periods", type=_positive_int,
+                       help="the progress rule's window (default: 3, or 6 where --sampling auto flies per-cluster)")
     group.add_argument("--recovery-angle-deg", type=float,
                        help="homing: the chain's start and the heading-relative share of the proposal turn at most "
                             "this far from the heading, degrees, in (0, 90) (default: 60; what 70 trades in dense "

@@ -89,25 +89,21 @@ Later horizon waypoints stay shifted copies, as in IV-C: with the decision re-pl
 every period, the recovery angles turned every missed aircraft home in the runs below
 without re-aiming them.
 
-Measured (wind σ = 5.17 m/s, K = 1000, ``atc-nf evaluate --policy mpc --scenario S
---runs R --workers 1 [--proposal paper]``, seeds 0..R−1). The "homing" rows are flown
-by the kernel with the saddle's sub-steps; the "paper" rows by the kernel before them:
+What the defaults and Table I's proposal fly on the paper's encounters is measured in
+REPRODUCTION.md (``atc-nf reproduce``, 1000 runs each); in dense traffic and on streams
+in docs/mpc.md and BENCHMARKS.md.
 
-============  ========  ====  ========  ===  ============  =========  =========  ==================
-scenario      proposal  runs  every     LoS  runs with a   fallbacks  mean       airspeed range
-                              aircraft       step outside             flight
-                              home           [366, 540]               (arrived)
-                                             kt
-============  ========  ====  ========  ===  ============  =========  =========  ==================
-converging-4  paper     60    54        0    0             0          75.5 min   366.6 .. 520.2 kt
-converging-4  homing    300   300       0    0             0          67.2 min   370.1 .. 536.0 kt
-converging-6  paper     60    51        0    1 (seed 32)   2          88.2 min   −471.3 .. 539.4 kt
-converging-6  homing    300   300       0    0             0          70.1 min   370.2 .. 535.9 kt
-random-4      homing    78    78        0    0             0          64.2 min   372.2 .. 535.3 kt
-random-6      homing    60    60        0    0             0          66.5 min   370.1 .. 532.5 kt
-============  ========  ====  ========  ===  ============  =========  =========  ==================
+## Traffic of any density (``sampling="auto"``)
 
-No decision of the "homing" runs above needed a wider search round.
+The joint search is the paper's, and it is what the default flies on the paper's
+encounters (at most ``JOINT_SEARCH_MAX_AIRCRAFT`` = 6 aircraft), bit for bit as before
+``"auto"`` existed. With more aircraft in conflict at once, almost no joint candidate is
+feasible: the default then flies ``DENSE_TRAFFIC_SETTINGS``, the per-cluster search with
+the progress rule (``sampling="per-cluster"``, ``progress_fraction=0.5``,
+``progress_periods=6``), and on every traffic stream. The choice is made at ``reset``
+from the scenario (``MPCSettings.for_traffic``); ``settings`` is what flies, and
+``requested_settings`` what was asked. Give ``sampling`` to choose yourself; the named
+settings that the benchmark pages compare are ``NAMED_SETTINGS``.
 
 ## Lazy search
 
@@ -224,6 +220,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
 import numba
@@ -248,7 +245,7 @@ from atc_nf_env.kernel import (
 # The proposal's draws live in the core, which the safety filter's sampled tier shares;
 # re-exported here, where they were first defined.
 from atc_nf_env.proposals import homing_mixture_draws, inside_workspace
-from atc_nf_env.scenarios import Scenario
+from atc_nf_env.scenarios import Scenario, StreamScenario
 from atc_nf_env.shield import APPROACH_RADIUS_NM, APPROACH_TURN_RAD
 from atc_nf_env.simulation import WorldView, initial_state
 from atc_nf_env.units import AIRSPEED_NOMINAL_KT, DECISION_PERIOD_S, KT_PER_MPS, SECONDS_PER_HOUR, WIND_SIGMA_MPS
@@ -262,7 +259,30 @@ PROPOSALS = ("homing", "paper")
 CONSTRAINT_CHECKS = ("every-step", "sampling-instants")
 ACCEPTANCES = ("standard", "table-i")
 SEARCHES = ("lazy", "exhaustive")
-SAMPLINGS = ("joint", "clusters", "per-cluster")
+SAMPLINGS = ("auto", "joint", "clusters", "per-cluster")
+
+#: ``sampling="auto"`` searches jointly up to this many aircraft (the paper's encounters
+#: have 4 and 6; its Table I is a joint search) and per conflict cluster above it.
+JOINT_SEARCH_MAX_AIRCRAFT = 6
+#: What ``sampling="auto"`` flies in traffic the joint search cannot cope with (encounters
+#: of more than ``JOINT_SEARCH_MAX_AIRCRAFT`` aircraft, every traffic stream): each
+#: independent conflict cluster searched by a chain of its own, and the progress rule over
+#: 30 min (unless ``progress_fraction`` is given; then it is the one given, over
+#: ``progress_periods``). Measured against the joint search: docs/mpc.md.
+DENSE_TRAFFIC_SETTINGS = MappingProxyType({"sampling": "per-cluster", "progress_fraction": 0.5,
+                                           "progress_periods": 6})
+#: Documented settings of the one controller, by name (``MCMCMPC(**NAMED_SETTINGS[name])``):
+#: what BENCHMARKS.md and docs/mpc.md compare. "auto" is the default.
+NAMED_SETTINGS = MappingProxyType({
+    "auto": MappingProxyType({}),
+    "joint": MappingProxyType({"sampling": "joint"}),
+    "dense": MappingProxyType({"sampling": "clusters", "progress_fraction": 0.5, "progress_periods": 6}),
+    "per-cluster": DENSE_TRAFFIC_SETTINGS,
+    # Turning up to 70° instead of 60° a period: near home, 60° a period circles ~35 nm out.
+    "per-cluster-70": MappingProxyType({**DENSE_TRAFFIC_SETTINGS, "recovery_angle_rad": math.radians(70.0)}),
+    # Turning up to 80° only within 60 nm of home, where the orbits are.
+    "per-cluster-approach-80": MappingProxyType({**DENSE_TRAFFIC_SETTINGS, "approach_angle_rad": math.radians(80.0)}),
+})
 
 #: The default margin inside the airspeed envelope that "homing" predicts with, kt.
 HOMING_ENVELOPE_MARGIN_KT = 4.0
@@ -348,8 +368,10 @@ class MPCSettings:
             to decide on it, or "exhaustive" simulates every candidate over the whole
             horizon. Both pick the same candidate from the same draws; only
             "exhaustive" knows every decision's feasible fraction (see "Lazy search").
-        sampling: "joint" (default: every candidate draws every flying aircraft's
-            waypoint) or "clusters" ("homing" only; see "Dense traffic"): when the
+        sampling: "auto" (default: "joint" on the paper's encounters, of at most
+            ``JOINT_SEARCH_MAX_AIRCRAFT`` aircraft, ``DENSE_TRAFFIC_SETTINGS`` on more
+            aircraft and on traffic streams; ``for_traffic`` says exactly), "joint"
+            (every candidate draws every flying aircraft's waypoint) or "clusters" ("homing" only; see "Dense traffic"): when the
             chain's start breaks a constraint, the candidates draw only the waypoints of
             the conflict cluster around the aircraft involved.
             "per-cluster" ("homing" and "every-step" only): each independent conflict
@@ -387,7 +409,7 @@ class MPCSettings:
     envelope_margin_kt: float | None = None
     first_decision_margin_kt: float | None = None
     search: str = "lazy"
-    sampling: str = "joint"
+    sampling: str = "auto"
     cluster_radius_nm: float = 30.0
     progress_fraction: float | None = None
     progress_periods: int = 3
@@ -450,7 +472,7 @@ class MPCSettings:
         ):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: allowed: {', '.join(allowed)}")
-        if self.proposal == "paper" and (self.sampling != "joint" or self.progress_fraction is not None):
+        if self.proposal == "paper" and (self.sampling not in ("auto", "joint") or self.progress_fraction is not None):
             raise ValueError(
                 f"sampling = {self.sampling!r}, progress_fraction = {self.progress_fraction!r}: the conflict "
                 "clusters and the progress rule need proposal='homing' (proposal='paper' is Table I as printed)"
@@ -460,6 +482,24 @@ class MPCSettings:
                 f"sampling = 'per-cluster' with constraint_check = {self.constraint_check!r}: the clusters are "
                 "found at integration-step resolution, so the chains must check every step ('every-step')"
             )
+
+
+    def for_traffic(self, scenario: Scenario) -> MPCSettings:
+        """These settings with ``sampling="auto"`` resolved for ``scenario``: the joint
+        search on an encounter of at most ``JOINT_SEARCH_MAX_AIRCRAFT`` aircraft, under
+        ``proposal="paper"`` (Table I as printed) and under
+        ``constraint_check="sampling-instants"`` (the clusters need every step);
+        ``DENSE_TRAFFIC_SETTINGS`` otherwise (more aircraft, or a traffic stream), with
+        the progress rule given, if one is. Any other ``sampling`` is returned as is."""
+        if self.sampling != "auto":
+            return self
+        stream = isinstance(scenario, StreamScenario)
+        if (self.proposal == "paper" or self.constraint_check != "every-step"
+                or (not stream and scenario.n_aircraft <= JOINT_SEARCH_MAX_AIRCRAFT)):
+            return dataclasses.replace(self, sampling="joint")
+        if self.progress_fraction is None:
+            return dataclasses.replace(self, **DENSE_TRAFFIC_SETTINGS)
+        return dataclasses.replace(self, sampling=DENSE_TRAFFIC_SETTINGS["sampling"])
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
@@ -577,6 +617,10 @@ class MCMCMPC:
                     f"allowed: {allowed}"
                 )
             base = MPCSettings(**{**base.__dict__, **overrides})
+        #: The settings as given (``sampling`` may be "auto").
+        self.requested_settings = base
+        #: The settings flown: ``requested_settings.for_traffic`` of the scenario of the
+        #: last ``reset`` (the requested ones before any).
         self.settings = base
         self.decisions: list[DecisionRecord] = []
         self._rng = np.random.default_rng(0)
@@ -614,7 +658,9 @@ class MCMCMPC:
 
     # -- Policy interface -------------------------------------------------------------
     def reset(self, scenario: Scenario, config: SimConfig, seed: int | None = None) -> None:
-        """Seed the controller and prepare its prediction model for ``scenario``."""
+        """Seed the controller and prepare its prediction model for ``scenario`` (and pick
+        its search for the traffic: ``MPCSettings.for_traffic``)."""
+        self.settings = self.requested_settings.for_traffic(scenario)
         if config.dt_s <= 0 or kernel.steps_for(self.settings.period_s, config.dt_s) < 1:
             raise ValueError(f"period_s = {self.settings.period_s}: must be >= one integration step")
         check_batch_size(self.settings.extractions, scenario.n_aircraft, "MPC extractions (K)")

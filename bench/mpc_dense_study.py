@@ -3,7 +3,10 @@
 Flies ``baselines.MCMCMPC`` on converging-N and random-N encounters of many aircraft
 (σ = 5.17 m/s, the evaluator's 4-h limit) in these settings:
 
-- ``joint``: the defaults (every decision samples every aircraft's waypoint jointly);
+- ``auto``: the defaults (``joint`` on at most 6 aircraft, ``per-cluster`` on more and
+  on streams: ``baselines.mcmc_mpc.MPCSettings.for_traffic``), not in the default
+  ``--settings`` (its rows are the ``per-cluster`` rows above 6 aircraft, bit for bit);
+- ``joint``: every decision samples every aircraft's waypoint jointly (the paper's search);
 - ``dense``: ``sampling="clusters"`` (when the chain's start breaks a constraint, the
   chain samples only the conflict cluster around the aircraft involved, the others keep
   their start) and the progress rule (``progress_fraction=0.5``, ``progress_periods=6``:
@@ -50,21 +53,11 @@ from typing import Callable
 
 import numpy as np
 
-from atc_nf_env.shield import STREAM_FALLBACK_MPC_SETTINGS
+from baselines.mcmc_mpc import NAMED_SETTINGS
 
-#: The safety filter's fallback on streams flies these by default.
-_PER_CLUSTER = dict(STREAM_FALLBACK_MPC_SETTINGS)
-#: The settings compared, by name: keyword arguments of ``baselines.MCMCMPC``.
-SETTINGS = {
-    "joint": {},
-    "dense": {"sampling": "clusters", "progress_fraction": 0.5, "progress_periods": 6},
-    "per-cluster": _PER_CLUSTER,
-    # The same, with the chain's start and the heading-relative proposals turning up to 70°
-    # instead of 60° a period: near home, 60° a period circles ~35 nm out (docs/mpc.md).
-    "per-cluster-70": {**_PER_CLUSTER, "recovery_angle_rad": math.radians(70.0)},
-    # The same turning up to 80° only within 60 nm of home, where the orbits are.
-    "per-cluster-approach-80": {**_PER_CLUSTER, "approach_angle_rad": math.radians(80.0)},
-}
+#: The settings compared, by name: ``baselines.mcmc_mpc.NAMED_SETTINGS`` ("auto", the
+#: default, flies "joint" up to 6 aircraft and "per-cluster" above and on streams).
+SETTINGS = {name: dict(settings) for name, settings in NAMED_SETTINGS.items()}
 #: What ``--settings`` flies when left out (the tables written before "per-cluster-70").
 DEFAULT_SETTINGS = ("joint", "dense", "per-cluster")
 #: A run fails the detour goal when an aircraft flies more than this times its direct distance.
@@ -127,8 +120,8 @@ def _shielded(proposer: str, setting: str):
     else:
         inner = make_policy(proposer)
     # On a stream the filter's fallback flies its settings over STREAM_FALLBACK_MPC_SETTINGS:
-    # a setting that does not name the sampling and the progress rule ("joint") names them.
-    return SafetyFilter(inner, mpc_settings={"sampling": "joint", "progress_fraction": None, **SETTINGS[setting]})
+    # a setting that does not name the progress rule ("joint", "auto") turns it off there.
+    return SafetyFilter(inner, mpc_settings={"sampling": "auto", "progress_fraction": None, **SETTINGS[setting]})
 
 
 def fly_stream(setting: str, stream_name: str, seed: int, proposer: str = "") -> dict:

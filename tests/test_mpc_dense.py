@@ -214,7 +214,7 @@ def test_the_dense_study_prints_one_row_per_setting_and_scenario(capsys, monkeyp
     assert "--runs 1 --first-seed 5" in out and "seeds 5–5" in out
     with pytest.raises(SystemExit):
         study.main(["--settings", "fast"])
-    assert "allowed: joint, dense" in capsys.readouterr().err
+    assert "allowed: auto, joint, dense" in capsys.readouterr().err
     # Streams only: one row per setting and stream, in a section of their own.
     assert study.main(["--scenarios", "", "--settings", "dense", "--streams", "stream-30-20min",
                        "--stream-runs", "1"]) == 0
@@ -304,5 +304,5 @@ def test_per_cluster_flies_a_traffic_stream():
 def test_per_cluster_needs_the_every_step_check():
     with pytest.raises(ValueError, match="per-cluster.*every-step"):
         MCMCMPC(sampling="per-cluster", constraint_check="sampling-instants")
-    with pytest.raises(ValueError, match="allowed: joint, clusters, per-cluster"):
+    with pytest.raises(ValueError, match="allowed: auto, joint, clusters, per-cluster"):
         MCMCMPC(sampling="per-clusters")

@@ -53,8 +53,13 @@ def test_the_filter_falls_back_on_the_per_cluster_mpc_on_streams_and_on_the_defa
     assert (stream.sampling, stream.progress_fraction, stream.progress_periods) == ("per-cluster", 0.5, 6)
     assert dict(STREAM_FALLBACK_MPC_SETTINGS) == {"sampling": "per-cluster", "progress_fraction": 0.5,
                                                   "progress_periods": 6}
-    encounter = shielded.fallback_for(make_scenario("converging-4")).settings
+    converging_4 = make_scenario("converging-4")
+    encounter = shielded.fallback_for(converging_4).settings.for_traffic(converging_4)
     assert (encounter.sampling, encounter.progress_fraction) == ("joint", None)
+    # The MPC's own default picks its search by the traffic: per cluster above 6 aircraft.
+    random_12 = make_scenario("random-12", seed=3)
+    dense = shielded.fallback_for(random_12).settings.for_traffic(random_12)
+    assert (dense.sampling, dense.progress_fraction, dense.progress_periods) == ("per-cluster", 0.5, 6)
     # Settings given go over either default; the stream's own can be overridden.
     given = SafetyFilter(make_policy("nf"), mpc_settings={"extractions": 200, "sampling": "joint",
                                                             "progress_fraction": None})

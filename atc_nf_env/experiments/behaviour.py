@@ -15,8 +15,8 @@ the software, each flown with fixed seeds:
 - ``stream``: the same of the PettingZoo stream env on an hour of stream-30, and the
   per-cluster MPC flying an hour of stream-12.
 - ``mpc``: the MCMC-MPC's waypoints and run metrics: its defaults on converging-4 (a
-  whole episode), Table I's proposal (``proposal="paper"``), the per-cluster search with
-  the progress rule on random-12, and a decision with no feasible candidate (two aircraft
+  whole episode) and on random-12, Table I's proposal (``proposal="paper"``), the
+  per-cluster search with the progress rule on random-12, and a decision with no feasible candidate (two aircraft
   6 nm apart abreast).
 - ``filter``: the safety filter's waypoints and counts around a proposer of seeded
   random waypoints (random-6), with the MPC and the least-bad fallback.
@@ -205,6 +205,7 @@ def mpc_part() -> str:
     _episode(digest, make_policy("mpc", proposal="paper"), "converging-4", 2_000_000_018, max_time_s=1800.0)
     _episode(digest, make_policy("mpc", sampling="per-cluster", progress_fraction=0.5, progress_periods=6),
              "random-12", 2_000_000_019, max_time_s=1200.0)
+    _episode(digest, make_policy("mpc"), "random-12", 2_000_000_020, max_time_s=1200.0)
     abreast = {"name": "abreast-2", "aircraft": [{"start": [-250.0, 0.0], "destination": [250.0, 0.0]},
                                                  {"start": [-250.0, 6.0], "destination": [250.0, 6.0]}]}
     with warnings.catch_warnings():
