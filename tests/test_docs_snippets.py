@@ -73,10 +73,11 @@ SCALED: dict[str, tuple[str, str]] = {
         "atc-nf benchmark --policy bc_offline.zip --task converging-4 --split validation --runs 2 --workers 1"
         " --no-progress",
         "2 validation runs (and the MPC's on the same seeds) give the same card"),
-    "atc-nf evaluate --policy mpc --sampling per-cluster --progress-fraction 0.5 --progress-periods 6"
-    " --scenario converging-16 --runs 20": (
-        "atc-nf evaluate --policy mpc --sampling per-cluster --progress-fraction 0.5 --progress-periods 6"
-        " --scenario converging-16 --runs 1 --workers 1 --no-progress",
+    "atc-nf evaluate --policy mpc --scenario converging-16 --runs 20": (
+        "atc-nf evaluate --policy mpc --scenario converging-16 --runs 1 --workers 1 --no-progress",
+        "20 dense MPC episodes take most of a minute; 1 goes through the same settings and summary"),
+    "atc-nf evaluate --policy mpc --sampling joint --scenario converging-16 --runs 20": (
+        "atc-nf evaluate --policy mpc --sampling joint --scenario converging-16 --runs 1 --workers 1 --no-progress",
         "20 dense MPC episodes take most of a minute; 1 goes through the same settings and summary"),
     "python -m agents.zoo --write": (
         "python -m agents.zoo",
