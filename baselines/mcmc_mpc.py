@@ -246,7 +246,7 @@ from atc_nf_env.kernel import (
 # re-exported here, where they were first defined.
 from atc_nf_env.proposals import homing_mixture_draws, inside_workspace
 from atc_nf_env.scenarios import Scenario, StreamScenario
-from atc_nf_env.shield import APPROACH_RADIUS_NM, APPROACH_TURN_RAD
+from atc_nf_env.shield import APPROACH_RADIUS_NM, APPROACH_TURN_RAD, STREAM_FALLBACK_MPC_SETTINGS
 from atc_nf_env.simulation import WorldView, initial_state
 from atc_nf_env.units import AIRSPEED_NOMINAL_KT, DECISION_PERIOD_S, KT_PER_MPS, SECONDS_PER_HOUR, WIND_SIGMA_MPS
 from atc_nf_env import compile_cache
@@ -269,14 +269,15 @@ JOINT_SEARCH_MAX_AIRCRAFT = 6
 #: independent conflict cluster searched by a chain of its own, and the progress rule over
 #: 30 min (unless ``progress_fraction`` is given; then it is the one given, over
 #: ``progress_periods``). Measured against the joint search: docs/mpc.md.
-DENSE_TRAFFIC_SETTINGS = MappingProxyType({"sampling": "per-cluster", "progress_fraction": 0.5,
-                                           "progress_periods": 6})
+#: The same settings as the safety filter's MPC fallback on streams, which is where they
+#: were measured first (the core's constant: the filter cannot import this package).
+DENSE_TRAFFIC_SETTINGS = STREAM_FALLBACK_MPC_SETTINGS
 #: Documented settings of the one controller, by name (``MCMCMPC(**NAMED_SETTINGS[name])``):
 #: what BENCHMARKS.md and docs/mpc.md compare. "auto" is the default.
 NAMED_SETTINGS = MappingProxyType({
     "auto": MappingProxyType({}),
     "joint": MappingProxyType({"sampling": "joint"}),
-    "dense": MappingProxyType({"sampling": "clusters", "progress_fraction": 0.5, "progress_periods": 6}),
+    "dense": MappingProxyType({**DENSE_TRAFFIC_SETTINGS, "sampling": "clusters"}),
     "per-cluster": DENSE_TRAFFIC_SETTINGS,
     # Turning up to 70° instead of 60° a period: near home, 60° a period circles ~35 nm out.
     "per-cluster-70": MappingProxyType({**DENSE_TRAFFIC_SETTINGS, "recovery_angle_rad": math.radians(70.0)}),
@@ -371,8 +372,8 @@ class MPCSettings:
         sampling: "auto" (default: "joint" on the paper's encounters, of at most
             ``JOINT_SEARCH_MAX_AIRCRAFT`` aircraft, ``DENSE_TRAFFIC_SETTINGS`` on more
             aircraft and on traffic streams; ``for_traffic`` says exactly), "joint"
-            (every candidate draws every flying aircraft's waypoint) or "clusters" ("homing" only; see "Dense traffic"): when the
-            chain's start breaks a constraint, the candidates draw only the waypoints of
+            (every candidate draws every flying aircraft's waypoint) or "clusters"
+            ("homing" only; see "Dense traffic"): when the chain's start breaks a constraint, the candidates draw only the waypoints of
             the conflict cluster around the aircraft involved.
             "per-cluster" ("homing" and "every-step" only): each independent conflict
             cluster of the chain's start is searched by a chain of its own.
@@ -482,7 +483,6 @@ class MPCSettings:
                 f"sampling = 'per-cluster' with constraint_check = {self.constraint_check!r}: the clusters are "
                 "found at integration-step resolution, so the chains must check every step ('every-step')"
             )
-
 
     def for_traffic(self, scenario: Scenario) -> MPCSettings:
         """These settings with ``sampling="auto"`` resolved for ``scenario``: the joint

@@ -11,7 +11,7 @@
 # written. Logs: out/regenerate/NN-name.log.
 #
 #   bash bench/regenerate.sh            # every stale table
-#   bash bench/regenerate.sh studies    # REPRODUCTION.md, agents/results/, the model zoo table, cards
+#   bash bench/regenerate.sh studies    # REPRODUCTION.md, docs/figures, agents/results/, the model zoo table, cards
 #   bash bench/regenerate.sh benchmarks # BENCHMARKS.md
 #   FORCE=1 bash bench/regenerate.sh    # every table, fresh or not
 #   FROM=2 bash bench/regenerate.sh     # from the second command on (after a failure)

@@ -78,7 +78,7 @@ class _Digest:
 
     def add(self, *values: Any) -> None:
         for value in values:
-            if isinstance(value, np.ndarray) or isinstance(value, np.generic):
+            if isinstance(value, (np.ndarray, np.generic)):
                 array = np.ascontiguousarray(value)
                 self._hash.update(f"{array.dtype.str}{array.shape}".encode())
                 self._hash.update(array.tobytes())
@@ -312,12 +312,17 @@ def current_stamp(parts: Iterable[str] = PARTS) -> dict[str, str]:
     return {part: cached[part] for part in parts}
 
 
-def _checked_parts(parts: Iterable[str]) -> list[str]:
+def _checked_parts(parts: Iterable[str], allowed: Sequence[str] = PARTS) -> list[str]:
+    """``parts`` in ``allowed``'s order; ValueError naming the allowed ones otherwise."""
     parts = list(parts)
-    unknown = [part for part in parts if part not in PROBES]
+    unknown = [part for part in parts if part not in allowed]
     if unknown or not parts:
-        raise ValueError(f"behaviour parts {unknown or parts!r}: allowed: {', '.join(PARTS)} (at least one)")
-    return [part for part in PARTS if part in parts]
+        raise ValueError(f"behaviour parts {unknown or parts!r}: allowed: {', '.join(allowed)} (at least one)")
+    return [part for part in allowed if part in parts]
+
+
+#: The parts a table's stamp may name: the probes' and ``BUILD``.
+TABLE_PARTS: tuple[str, ...] = PARTS + (BUILD,)
 
 
 #: Options of a table's command that do not change what the table holds, each with
@@ -377,15 +382,16 @@ def stamp_line(parts: Iterable[str], argv: Sequence[str]) -> str:
             + f" command={command_identity(argv)} -->")
 
 
-def table_stamp(parts: Iterable[str]) -> dict[str, str]:
-    """{part: value} of ``parts`` for a table: the probes' parts (``current_stamp``) and,
-    where ``BUILD`` is named, the build fingerprint: a table of timings is flown again when
-    the code changes, whatever it flies, since speed is not in the probes."""
+def table_stamp(parts: Iterable[str], fresh: bool = False) -> dict[str, str]:
+    """{part: value} of ``parts`` for a table: the probes' parts (``current_stamp``, or
+    ``compute_stamp`` when ``fresh``) and, where ``BUILD`` is named, the build fingerprint:
+    a table of timings is flown again when the code changes, whatever it flies, since speed
+    is not in the probes."""
     from atc_nf_env import build
 
-    parts = list(parts)
+    parts = _checked_parts(parts, TABLE_PARTS)
     probed = [part for part in parts if part != BUILD]
-    stamp = current_stamp(probed) if probed else {}
+    stamp = (compute_stamp if fresh else current_stamp)(probed) if probed else {}
     if BUILD in parts:
         stamp[BUILD] = build.fingerprint()
     return stamp
@@ -438,11 +444,15 @@ def write_stamp(path: Path, section: str | None, line: str) -> None:
     partial.replace(path)
 
 
+def _where(path: Path, section: str | None) -> str:
+    return f"{path}" + (f" [{section}]" if section else "")
+
+
 def why_stale(path: Path, section: str | None, parts: Iterable[str], argv: Sequence[str]) -> str | None:
     """Why the table must be flown again (None when it is fresh): missing, unstamped, a
     part of the behaviour moved, a part unavailable here, or its command changed."""
-    where = f"{path}" + (f" [{section}]" if section else "")
-    _checked_parts([part for part in parts if part != BUILD] or list(PARTS))
+    where = _where(path, section)
+    _checked_parts(parts, TABLE_PARTS)  # a bad part is an error even for a missing table
     text = table_text(path, section)
     if text is None:
         return f"{where}: no such table"
@@ -469,7 +479,7 @@ def fly_table(path: Path, section: str | None, parts: Sequence[str], argv: Seque
     import subprocess
 
     reason = "flown on request (--force)" if force else why_stale(path, section, parts, argv)
-    where = f"{path}" + (f" [{section}]" if section else "")
+    where = _where(path, section)
     if reason is None:
         print(f"{where}: fresh (behaviour and command unchanged), not flown again", flush=True)
         return 0
@@ -489,11 +499,10 @@ def fly_table(path: Path, section: str | None, parts: Sequence[str], argv: Seque
 
 
 def _parts_argument(value: str) -> list[str]:
-    parts = [part for part in value.split(",") if part]
-    unknown = [part for part in parts if part not in PROBES and part != BUILD]
-    if unknown or not parts:
-        raise argparse.ArgumentTypeError(f"{value!r}: allowed: {', '.join(PARTS + (BUILD,))}, comma-separated")
-    return parts
+    try:
+        return _checked_parts([part for part in value.split(",") if part], TABLE_PARTS)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{value!r}: allowed: {', '.join(TABLE_PARTS)}, comma-separated") from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -509,7 +518,7 @@ def main(argv: list[str] | None = None) -> int:
         command.add_argument("file", type=Path, help="the table's file")
         command.add_argument("section", nargs="?", help="its marked section (none: the whole file)")
         command.add_argument("--parts", type=_parts_argument, default=list(PARTS),
-                             help=f"the parts the table depends on: {', '.join(PARTS + (BUILD,))}")
+                             help=f"the parts the table depends on: {', '.join(TABLE_PARTS)}")
         if name == "fly":
             command.add_argument("--force", action="store_true", help="fly it even when it is fresh")
         command.epilog = "The table's command follows a lone --, as it is run."
@@ -526,10 +535,9 @@ def main(argv: list[str] | None = None) -> int:
             reason = why_stale(args.file, args.section, args.parts, command)
         except ValueError as error:
             parser.error(str(error))
-        print(reason or f"{args.file}{' [' + args.section + ']' if args.section else ''}: fresh")
+        print(reason or f"{_where(args.file, args.section)}: fresh")
         return 0 if reason is None else 1
-    parts = getattr(args, "parts", list(PARTS))
-    stamp = compute_stamp(parts) if getattr(args, "fresh", False) else current_stamp(parts)
+    stamp = table_stamp(getattr(args, "parts", list(PARTS)), fresh=getattr(args, "fresh", False))
     for part, value in stamp.items():
         print(f"{part:7s} {value}")
     return 0
