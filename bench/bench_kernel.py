@@ -40,7 +40,6 @@ import numba
 from atc_nf_env import kernel as current
 from atc_nf_env import nf, trig
 from atc_nf_env.config import SimConfig
-from atc_nf_env import build
 from atc_nf_env.scenarios import ENCOUNTER_RADIUS_NM, WORKSPACE_RADIUS_NM, Scenario, converging, random_encounter
 from atc_nf_env.simulation import initial_state
 from atc_nf_env.units import DECISION_PERIOD_S
@@ -312,7 +311,7 @@ def scaling_text(rows: list[dict[str, float]], rounds: int, seeds: int) -> str:
     return "\n".join([
         "## Kernel scaling with the number of aircraft",
         "",
-        f"`python bench/bench_kernel.py --scaling` — build `{build.fingerprint()}`, {machine()}, numba "
+        f"`python bench/bench_kernel.py --scaling` — {machine()}, numba "
         f"{numba.__version__} with {numba.get_num_threads()} threads. Random encounters at random-8's density "
         f"(the circle's radius 250 nm · √(N / 8), {seeds} seeds), timed over one 5-min period from 80 % of the way "
         "to the centre, where the traffic crosses; CPU time of the process (all threads), medians over "

@@ -4,8 +4,7 @@ Flies ``baselines.MCMCMPC`` on converging-N and random-N encounters of many airc
 (σ = 5.17 m/s, the evaluator's 4-h limit) in these settings:
 
 - ``auto``: the defaults (``joint`` on at most 6 aircraft, ``per-cluster`` on more and
-  on streams: ``baselines.mcmc_mpc.MPCSettings.for_traffic``), not in the default
-  ``--settings`` (its rows are the ``per-cluster`` rows above 6 aircraft, bit for bit);
+  on streams: ``baselines.mcmc_mpc.MPCSettings.for_traffic``);
 - ``joint``: every decision samples every aircraft's waypoint jointly (the paper's search);
 - ``dense``: ``sampling="clusters"`` (when the chain's start breaks a constraint, the
   chain samples only the conflict cluster around the aircraft involved, the others keep
@@ -13,13 +12,14 @@ Flies ``baselines.MCMCMPC`` on converging-N and random-N encounters of many airc
   an aircraft that closed less than half a direct flight's progress over 30 min is held
   on its recovery waypoint);
 - ``per-cluster``: ``sampling="per-cluster"`` (each independent conflict cluster of the
-  chain's start searched by a chain of its own) and the same progress rule;
+  chain's start searched by a chain of its own) and the same progress rule; not in the
+  default ``--settings``: above 6 aircraft and on streams its rows are ``auto``'s, bit for
+  bit;
 - ``per-cluster-70``: ``per-cluster`` with ``recovery_angle_rad`` 70° instead of 60° (the
-  chain's start and the heading-relative share of the proposal turn up to 70° a period).
-  Not in the default ``--settings``.
+  chain's start and the heading-relative share of the proposal turn up to 70° a period);
 - ``per-cluster-approach-80``: ``per-cluster`` with ``approach_angle_rad`` 80°: within
   60 nm of home an aircraft turns up to 80° a period (60° elsewhere), against orbits near
-  home. Not in the default ``--settings``.
+  home.
 
 Per row: runs; runs with every aircraft home; runs with a loss of separation; runs with
 any integration step outside [366, 540] kt and the worst excursion; runs with a fallback
@@ -58,8 +58,11 @@ from baselines.mcmc_mpc import NAMED_SETTINGS
 #: The settings compared, by name: ``baselines.mcmc_mpc.NAMED_SETTINGS`` ("auto", the
 #: default, flies "joint" up to 6 aircraft and "per-cluster" above and on streams).
 SETTINGS = {name: dict(settings) for name, settings in NAMED_SETTINGS.items()}
-#: What ``--settings`` flies when left out (the tables written before "per-cluster-70").
-DEFAULT_SETTINGS = ("joint", "dense", "per-cluster")
+#: What ``--settings`` flies when left out: every named setting but "per-cluster", whose
+#: rows above 6 aircraft are "auto"'s.
+DEFAULT_SETTINGS = ("auto", "joint", "dense", "per-cluster-70", "per-cluster-approach-80")
+#: How the tables describe "auto", whose settings are the defaults.
+AUTO_DESCRIBED = "the defaults: joint up to 6 aircraft, per-cluster above"
 #: A run fails the detour goal when an aircraft flies more than this times its direct distance.
 DETOUR_LIMIT = 1.5
 #: The reference of the decision-time ratio.
@@ -244,8 +247,6 @@ def study(setting: str, scenario_name: str, seeds: range, workers: int) -> dict:
 def main(argv: list[str] | None = None) -> int:
     from _report import machine, publish  # bench/ is on sys.path when run as a script
 
-    from atc_nf_env import build
-
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--settings", default=",".join(DEFAULT_SETTINGS),
                         help=f"of {', '.join(SETTINGS)} (default: {','.join(DEFAULT_SETTINGS)})")
@@ -293,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
         text = "\n".join([
             "## Shielded policies on traffic streams" if proposers else "## MCMC-MPC on traffic streams",
             "",
-            f"`{command}` ({machine()}, build `{build.fingerprint()}`) — {what}; seeds {stream_seeds.start}–"
+            f"`{command}` ({machine()}) — {what}; seeds {stream_seeds.start}–"
             f"{stream_seeds.stop - 1}, σ = 5.17 m/s, 2 h of traffic each; outcomes per run (a flight that left: "
             "it left the workspace instead of arriving; outside the envelope: any integration step outside "
             "[366, 540] kt). Throughput: flights arrived per "
@@ -309,7 +310,6 @@ def main(argv: list[str] | None = None) -> int:
 def encounter_table(args: argparse.Namespace, settings: list[str], scenarios: list[str], seeds: range) -> int:
     from _report import machine, publish
 
-    from atc_nf_env import build
     rows = [
         "| setting | scenario | runs | every aircraft home | runs with LoS | runs outside envelope (worst kt) "
         f"| runs with a fallback (fallbacks) | runs with a path > {DETOUR_LIMIT}× direct (largest) "
@@ -331,16 +331,14 @@ def encounter_table(args: argparse.Namespace, settings: list[str], scenarios: li
     command = (f"python bench/mpc_dense_study.py --settings {','.join(settings)} --scenarios {args.scenarios} "
                f"--runs {args.runs} --first-seed {args.first_seed} --workers {args.workers}"
                + ("" if args.section == "mpc-dense" else f" --section {args.section}"))
-    title = "MCMC-MPC in dense traffic" + ("" if args.section == "mpc-dense" else f": {', '.join(scenarios)}, "
-                                                                                 f"{args.runs} runs")
-    if args.section != "mpc-dense" and set(settings) - set(DEFAULT_SETTINGS):
-        title += f" ({', '.join(settings)})"  # a setting outside the default set names its section
-    described = "; ".join(f"{name}: {', '.join(f'{k}={v!r}' for k, v in SETTINGS[name].items()) or 'the defaults'}"
+    title = "MCMC-MPC in dense traffic" + ("" if args.section == "mpc-dense" else
+                                           f": {', '.join(settings)}, {args.runs} runs")
+    described = "; ".join(f"{name}: {', '.join(f'{k}={v!r}' for k, v in SETTINGS[name].items()) or AUTO_DESCRIBED}"
                           for name in settings)
     text = "\n".join([
         f"## {title}",
         "",
-        f"`{command}` ({machine()}, build `{build.fingerprint()}`) — `baselines.MCMCMPC` ({described}), seeds "
+        f"`{command}` ({machine()}) — `baselines.MCMCMPC` ({described}), seeds "
         f"{seeds.start}–{seeds.stop - 1}, σ = 5.17 m/s, "
         "4-h limit; outcomes per run (outside the envelope: any integration step outside [366, 540] kt; a "
         "fallback: a decision without a feasible candidate). Decision times warm, in this run.",

@@ -15,6 +15,8 @@
 #   bash bench/regenerate.sh benchmarks # BENCHMARKS.md
 #   FORCE=1 bash bench/regenerate.sh    # every table, fresh or not
 #   FROM=2 bash bench/regenerate.sh     # from the second command on (after a failure)
+#   ONLY=mpc-dense,nf-floor bash bench/regenerate.sh   # only the tables named (the names below)
+#   SKIP=bench-kernel,bench-envs bash bench/regenerate.sh   # every table but those named
 #   DRY=1 bash bench/regenerate.sh      # say which tables are stale, fly nothing
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -23,6 +25,8 @@ WHAT=${1:-all}
 FROM=${FROM:-1}
 FORCE=${FORCE:-0}
 DRY=${DRY:-0}
+ONLY=${ONLY:-}
+SKIP=${SKIP:-}
 LOGS=out/regenerate
 mkdir -p "$LOGS"
 step=0
@@ -50,6 +54,10 @@ set_aside() {
     done
 }
 
+selected() {  # selected NAME: whether ONLY and SKIP (comma-separated names) let NAME fly
+    [[ -z $ONLY || ,$ONLY, == *,$1,* ]] && [[ ,$SKIP, != *,$1,* ]]
+}
+
 stamped() {  # stamped NAME FILE[#SECTION] PARTS [FOLDERS-TO-SET-ASIDE] -- COMMAND...
     step=$((step + 1))
     local name=$1 table=$2 parts=$3
@@ -58,6 +66,7 @@ stamped() {  # stamped NAME FILE[#SECTION] PARTS [FOLDERS-TO-SET-ASIDE] -- COMMA
     while [[ $1 != -- ]]; do folders+=("$1"); shift; done
     shift
     ((step < FROM)) && return
+    selected "$name" || return 0
     local file=${table%%#*} section=()
     [[ $table == *#* ]] && section=("${table#*#}")
     local log
@@ -84,6 +93,7 @@ derived() {  # derived NAME COMMAND...: a page written from other tables' files,
     local name=$1
     shift
     ((step < FROM || DRY == 1)) && return
+    selected "$name" || return 0
     local log
     log=$(printf '%s/%02d-%s.log' "$LOGS" "$step" "$name")
     echo "[$(date +%H:%M:%S)] $name: $*"
@@ -128,9 +138,11 @@ if [[ $WHAT == all || $WHAT == benchmarks ]]; then
     stamped layout-probe BENCHMARKS.md#layout-probe build -- "$PYTHON" bench/layout_probe.py --rounds 31 --write
     stamped nf-floor BENCHMARKS.md#nf-floor kernel,stream,mpc,filter -- "$PYTHON" bench/nf_floor_study.py --shield stream-30,stream-60 --write
     stamped mpc-dense BENCHMARKS.md#mpc-dense kernel,mpc -- "$PYTHON" bench/mpc_dense_study.py --runs 20 --workers 2 --write
-    stamped mpc-streams BENCHMARKS.md#mpc-streams kernel,stream,mpc -- "$PYTHON" bench/mpc_dense_study.py --scenarios '' --streams stream-30,stream-60,stream-120 --stream-runs 4 --workers 2 --write
-    stamped shielded-streams BENCHMARKS.md#shielded-streams kernel,stream,mpc,filter,agents -- "$PYTHON" bench/mpc_dense_study.py --settings per-cluster --scenarios '' --streams stream-30 --stream-runs 4 --shielded agents/models/deepsets_mixed.zip,nf-leg --workers 2 --write
+    stamped mpc-streams BENCHMARKS.md#mpc-streams kernel,stream,mpc -- "$PYTHON" bench/mpc_dense_study.py --settings auto,joint --scenarios '' --streams stream-30,stream-60,stream-120 --stream-runs 4 --workers 2 --write
+    stamped shielded-streams BENCHMARKS.md#shielded-streams kernel,stream,mpc,filter,agents -- "$PYTHON" bench/mpc_dense_study.py --settings auto --scenarios '' --streams stream-30 --stream-runs 4 --shielded agents/models/deepsets_mixed.zip,nf-leg --workers 2 --write
     stamped generalization-grid BENCHMARKS.md#generalization-grid kernel,mpc,filter,agents -- "$PYTHON" bench/generalization_grid.py --runs 20 --workers 2 --write --figure docs/figures/generalization_grid.png
     stamped offline-bc BENCHMARKS.md#offline-bc kernel,env,mpc,filter,agents -- "$PYTHON" bench/offline_bc_study.py --seeds 3 --episodes 24 --runs 50 --write
+    # The longest (about 90 min on 2 cores): last.
+    stamped mpc-dense-1000 BENCHMARKS.md#mpc-dense-1000 kernel,mpc -- "$PYTHON" bench/mpc_dense_study.py --settings auto --runs 1000 --workers 2 --section mpc-dense-1000 --write
 fi
 echo "regenerated ($WHAT) on build $("$PYTHON" -c 'from atc_nf_env import build; print(build.fingerprint())')"
