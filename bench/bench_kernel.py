@@ -3,7 +3,8 @@
 B worlds of the converging-N encounter flown for one 5-min period (all aircraft
 flying, the NF alone aimed at the destinations, neighbour terms active from the
 start only where aircraft are close), by the package's kernel and by the frozen copy
-of the kernel under ``bench/frozen_kernel`` (the yardstick of the speed-up), both
+of the kernel before its performance work (``bench/yardstick.py`` rebuilds it from git
+history: the yardstick of the speed-up), both
 through ``advance`` with its entry checks. The two are measured interleaved in rounds
 within one process; reported are the medians over rounds of B · N · steps / wall
 time and the median of the per-round ratios current / frozen. The first call of each
@@ -33,7 +34,7 @@ from types import ModuleType
 
 import numpy as np
 from _report import machine, publish  # bench/ is on sys.path when run as a script
-from frozen_kernel import kernel as frozen
+from yardstick import frozen_kernel
 
 import numba
 
@@ -44,7 +45,7 @@ from atc_nf_env.scenarios import ENCOUNTER_RADIUS_NM, WORKSPACE_RADIUS_NM, Scena
 from atc_nf_env.simulation import initial_state
 from atc_nf_env.units import DECISION_PERIOD_S
 
-KERNELS: dict[str, ModuleType] = {"frozen": frozen, "current": current}
+KERNELS: dict[str, ModuleType] = {"frozen": frozen_kernel(), "current": current}
 
 
 def start_state(module: ModuleType, scenario: Scenario, n_worlds: int) -> np.ndarray:
@@ -383,7 +384,7 @@ def main(argv: list[str] | None = None) -> int:
             f"`python bench/bench_kernel.py` — one 5-min period (dt = {dt:g} s) of converging-N per "
             f"`advance` call (entry checks included), {machine()}, numba {numba.__version__} with "
             f"{numba.get_num_threads()} threads. The current kernel against the frozen copy of the "
-            f"kernel before its performance work (`bench/frozen_kernel`), interleaved in "
+            f"kernel before its performance work (`bench/yardstick.py`, rebuilt from git history), interleaved in "
             f"{args.rounds} rounds in one process; medians over rounds, and the median of the "
             "per-round ratios with their quartiles (how far the machine's load moved a round's ratio):",
             "",
