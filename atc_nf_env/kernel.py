@@ -42,6 +42,12 @@ airspeeds u_j = −sgn(P_j) F_j of the same instant (the law is implicit in u_j,
 and θ_nh the angle of sgn(p_i) ∇_iΦ_i. The wind w enters the ground velocity only: the envelope
 constrains airspeed, and the NF never sees the wind.
 
+Each formula of the law and of the step is written once, in ``atc_nf_env.law``
+(``feedback``, ``airspeed``, ``turn_rate``, the right-hand rule's ``right_turn_weight``
+and ``right_turn_blend``, ``integrate``); the general path and the lane paths below call
+those functions, so an edit there changes every path (``tests/test_law_once.py``). The NF
+itself is ``atc_nf_env.nf``.
+
 Guards against the law's singularities and the step's error (each keeps a value finite
 that the law leaves undefined, or a step accurate; none acts in an ordinary flight but
 guards 8 and 10, which only fly some of its steps finer):
@@ -147,8 +153,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import get_num_threads, njit, prange
 
+from atc_nf_env import law, nf, trig
 from atc_nf_env import neighbour_grid as cells_grid
-from atc_nf_env import nf, trig
 from atc_nf_env.nf import FAST_MATH_FLAGS, NO_REFERENCE_COUNTS
 from atc_nf_env.nf import (
     ABSENT,
@@ -256,7 +262,6 @@ N_RECORD = 7
 #: Value of ``Trace.min_separation_nm`` when fewer than two aircraft flew.
 NO_PAIR_SEPARATION_NM = 1.0e9
 
-_HALF_PI = 0.5 * math.pi
 _TWO_PI = 2.0 * math.pi
 
 
@@ -321,16 +326,9 @@ def _segment_distance(x0: float, y0: float, x1: float, y1: float, px: float, py:
 def _right_turn_weight(dphi_dt: float, p_floored: float, params: np.ndarray) -> float:
     """Weight in [0, 1] of the right-hand rule (guard 9): 0 while the 1/P_i term of (5a),
     (∂Φ_i/∂t)⁺ / |P_i| in kt, is below ``right_turn_from_kt``, 1 from ``right_turn_full_kt``
-    on, a C¹ smoothstep between (so the flow it defines stays Lipschitz)."""
-    angle = params[nf.P_RIGHT_TURN]
-    if angle <= 0.0 or dphi_dt <= 0.0:
-        return 0.0
-    from_kt = params[nf.P_RIGHT_TURN_FROM]
-    term_kt = dphi_dt / abs(p_floored)
-    if term_kt <= from_kt:
-        return 0.0
-    x = min((term_kt - from_kt) / (params[nf.P_RIGHT_TURN_FULL] - from_kt), 1.0)
-    return x * x * (3.0 - 2.0 * x)
+    on, a C¹ smoothstep between (``law.right_turn_weight`` with the parameters')."""
+    return law.right_turn_weight(dphi_dt, p_floored, params[nf.P_RIGHT_TURN], params[nf.P_RIGHT_TURN_FROM],
+                                 params[nf.P_RIGHT_TURN_FULL])
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
@@ -396,28 +394,21 @@ def _commands(
         gy = grad[i, i, 1]
         heading = state[i, S_HEADING]
         sin_h, cos_h = trig.sincos(heading)
-        p_dir = cos_h * gx + sin_h * gy
         dx = (state[i, S_X] - wx) * inv_len
         dy = (state[i, S_Y] - wy) * inv_len
-        grad_norm2 = gx * gx + gy * gy
-        f_speed = k_u * grad_norm2 + k_z * (dx * dx + dy * dy)
-        sgn_p = 1.0 if p_dir >= 0.0 else -1.0
-        if grad_norm2 > grad_floor * grad_floor:
+        u_feedback, p_floored, has_direction = law.feedback(gx, gy, cos_h, sin_h, dx, dy, k_u, k_z, p_floor,
+                                                            grad_floor)
+        if has_direction:
             along = cos_d * dx + sin_d * dy
             sgn_along = 1.0 if along >= 0.0 else -1.0
             theta_nh = trig.poly_atan2(sgn_along * gy, sgn_along * gx)
         else:
             theta_nh = theta_d  # guard 3
-        theta_nh_rate = 0.0
-        if state[i, S_FRESH] == 0.0:
-            jump = _wrap(theta_nh - state[i, S_THETA_NH])
-            if abs(jump) <= _HALF_PI:  # guard 5
-                # Over the length of the last step: dt / (its number of sub-steps).
-                theta_nh_rate = jump * (max(state[i, S_LAST_SUBSTEPS], 1.0) * inv_dt)
-        command[i, C_U_FEEDBACK] = -sgn_p * f_speed
-        command[i, C_OMEGA] = -k_theta * _wrap(heading - theta_nh) + theta_nh_rate  # guard 4
+        command[i, C_U_FEEDBACK] = u_feedback
+        command[i, C_OMEGA] = law.turn_rate(_wrap(heading - theta_nh), _wrap(theta_nh - state[i, S_THETA_NH]),
+                                            state[i, S_FRESH], state[i, S_LAST_SUBSTEPS], inv_dt, k_theta)
         command[i, C_THETA_NH] = theta_nh
-        command[i, C_P] = sgn_p * max(abs(p_dir), p_floor)  # guard 1
+        command[i, C_P] = p_floored
         command[i, C_COS] = cos_h
         command[i, C_SIN] = sin_h
     refine = False
@@ -465,35 +456,26 @@ def _commands(
                 if j == i or status[j] != FLYING:
                     continue
                 along_j = grad[i, j, 0] * command[j, C_COS] + grad[i, j, 1] * command[j, C_SIN]
-                w_j = command[j, C_RIGHT_TURN]
                 u_j = command[j, C_U_FEEDBACK]
-                dphi_dt += ((1.0 - w_j) * u_j + w_j * abs(u_j)) * along_j
+                dphi_dt += law.right_turn_blend(u_j, command[j, C_RIGHT_TURN], u_j) * along_j
             command[i, C_DPHI_DT] = dphi_dt * dphi_dt_gain
     for i in range(n):
         if status[i] != FLYING:
             continue
         dphi_dt = command[i, C_DPHI_DT]
-        u = command[i, C_U_FEEDBACK]
-        if dphi_dt > 0.0:
-            # (∂Φ_i/∂t + |∂Φ_i/∂t|) is exactly 0 otherwise: the division would subtract ±0.
-            u -= (dphi_dt + abs(dphi_dt)) / (2.0 * command[i, C_P])
-        if not -u_cap < u < u_cap:
-            refine = True
-            u = min(max(u, -u_cap), u_cap)  # guard 2
+        u, saturated = law.airspeed(command[i, C_U_FEEDBACK], dphi_dt, command[i, C_P], u_cap)
+        refine |= saturated
         w = _right_turn_weight(dphi_dt, command[i, C_P], params) if any_turning else 0.0
         if w > 0.0:  # guard 9
             refine = True
-            u = (1.0 - w) * u + w * abs(command[i, C_U_FEEDBACK])
             theta_nh = command[i, C_THETA_NH] - w * params[nf.P_RIGHT_TURN]
-            theta_nh_rate = 0.0
-            if state[i, S_FRESH] == 0.0:
-                jump = _wrap(theta_nh - state[i, S_THETA_NH])
-                if abs(jump) <= _HALF_PI:  # guard 5
-                    theta_nh_rate = jump * (max(state[i, S_LAST_SUBSTEPS], 1.0) * inv_dt)
             command[i, C_THETA_NH] = theta_nh
-            command[i, C_OMEGA] = -k_theta * _wrap(state[i, S_HEADING] - theta_nh) + theta_nh_rate
+            command[i, C_OMEGA] = law.turn_rate(_wrap(state[i, S_HEADING] - theta_nh),
+                                                _wrap(theta_nh - state[i, S_THETA_NH]), state[i, S_FRESH],
+                                                state[i, S_LAST_SUBSTEPS], inv_dt, k_theta)
             # F_i itself can exceed the cap (a waypoint far away), so the blend can too.
-            u = min(max(u, -u_cap), u_cap)  # guard 2
+            # With no ∂Φ_i/∂t term left, ``law.airspeed`` only saturates (guard 2).
+            u, _ = law.airspeed(law.right_turn_blend(u, w, command[i, C_U_FEEDBACK]), 0.0, 1.0, u_cap)
         if not u_min <= u <= u_max:
             outside = True
         command[i, C_U] = u
@@ -846,26 +828,18 @@ def _move_aircraft(
     fly the same bits. ``n_sub``: the sub-steps of the step this one belongs to. Returns
     (x0, y0, x1, y1) nm."""
     u = command[i, C_U]
-    heading = source[i, S_HEADING]
     x0 = source[i, S_X]
     y0 = source[i, S_Y]
-    vx = u * command[i, C_COS] + wind_x
-    vy = u * command[i, C_SIN] + wind_y
     omega = command[i, C_OMEGA]
-    nm_per_kt_step = h / SECONDS_PER_HOUR
     # Second-order Adams-Bashforth (AB2): the airspeed falls steadily as the waypoint
     # nears, and explicit Euler's O(dt) error in that distance is what the convergence
     # study saw. AB2 needs the previous step's rates at this step's length; after a
     # waypoint switch they belong to another law, and within or after a refined step the
     # command is not smooth (or the step length changed), so those steps are plain Euler.
-    if source[i, S_FRESH] == 0.0 and source[i, S_LAST_SUBSTEPS] <= 1.0 and n_sub == 1:
-        x1 = x0 + (1.5 * vx - 0.5 * source[i, S_VX_PREV]) * nm_per_kt_step
-        y1 = y0 + (1.5 * vy - 0.5 * source[i, S_VY_PREV]) * nm_per_kt_step
-        new_heading = heading + (1.5 * omega - 0.5 * source[i, S_OMEGA_PREV]) * h
-    else:
-        x1 = x0 + vx * nm_per_kt_step
-        y1 = y0 + vy * nm_per_kt_step
-        new_heading = heading + omega * h
+    ab2 = source[i, S_FRESH] == 0.0 and source[i, S_LAST_SUBSTEPS] <= 1.0 and n_sub == 1
+    x1, y1, new_heading, vx, vy = law.integrate(x0, y0, source[i, S_HEADING], u, command[i, C_COS],
+                                                command[i, C_SIN], wind_x, wind_y, omega, source[i, S_VX_PREV],
+                                                source[i, S_VY_PREV], source[i, S_OMEGA_PREV], h, ab2)
     target[i, S_VX_PREV] = vx
     target[i, S_VY_PREV] = vy
     target[i, S_OMEGA_PREV] = omega
@@ -1306,13 +1280,10 @@ def _lane_feedback(gx: float, gy: float, cos_h: float, sin_h: float, dx: float, 
                    theta_d: float, params: np.ndarray) -> tuple[float, float]:
     """``_commands``' pass 1 after the NF, without neighbours: (−sgn(P_i) F_i kt, θ_nh rad),
     θ_d where the gradient has no direction (guard 3); dx, dy: q_i − q_d in units of L."""
-    grad_floor = params[P_GRAD_FLOOR]
-    p_dir = cos_h * gx + sin_h * gy
-    grad_norm2 = gx * gx + gy * gy
-    f_speed = params[P_K_U] * grad_norm2 + params[P_K_Z] * (dx * dx + dy * dy)
-    sgn_p = 1.0 if p_dir >= 0.0 else -1.0
-    theta_nh = atan2_nh if grad_norm2 > grad_floor * grad_floor else theta_d
-    return -sgn_p * f_speed, theta_nh
+    u_feedback, _, has_direction = law.feedback(gx, gy, cos_h, sin_h, dx, dy, params[P_K_U], params[P_K_Z],
+                                                params[P_P_FLOOR], params[P_GRAD_FLOOR])
+    theta_nh = atan2_nh if has_direction else theta_d
+    return u_feedback, theta_nh
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
@@ -1323,25 +1294,14 @@ def _lane_move(u: float, cos_h: float, sin_h: float, wind_x: float, wind_y: floa
     """The heading law (5b) and the move of one unrefined step (AB2, or Euler after a
     waypoint switch or a refined step), every branch a select: (x1, y1 nm, the wrapped
     heading rad, vx, vy kt, ω rad/s, whether an angle reached 3π)."""
-    nm_per_kt_step = dt / SECONDS_PER_HOUR
     jump_raw = theta_nh - theta_nh_before
     error_raw = heading - theta_nh
-    jump = _lane_wrap(jump_raw)
-    rate = jump * (max(last_sub, 1.0) * inv_dt)
-    theta_nh_rate = 0.0 if (fresh != 0.0) | (abs(jump) > _HALF_PI) else rate  # guard 5
-    omega = -k_theta * _lane_wrap(error_raw) + theta_nh_rate  # guard 4
-    vx = u * cos_h + wind_x
-    vy = u * sin_h + wind_y
+    omega = law.turn_rate(_lane_wrap(error_raw), _lane_wrap(jump_raw), fresh, last_sub, inv_dt, k_theta)
     ab2 = (fresh == 0.0) & (last_sub <= 1.0)
-    x_ab2 = x0 + (1.5 * vx - 0.5 * vx_prev) * nm_per_kt_step
-    y_ab2 = y0 + (1.5 * vy - 0.5 * vy_prev) * nm_per_kt_step
-    h_ab2 = heading + (1.5 * omega - 0.5 * omega_prev) * dt
-    x_euler = x0 + vx * nm_per_kt_step
-    y_euler = y0 + vy * nm_per_kt_step
-    h_euler = heading + omega * dt
-    new_heading = h_ab2 if ab2 else h_euler
+    x1, y1, new_heading, vx, vy = law.integrate(x0, y0, heading, u, cos_h, sin_h, wind_x, wind_y, omega, vx_prev,
+                                                vy_prev, omega_prev, dt, ab2)
     far = max(abs(jump_raw), abs(error_raw), abs(new_heading)) >= 3.0 * math.pi
-    return (x_ab2 if ab2 else x_euler), (y_ab2 if ab2 else y_euler), _lane_wrap(new_heading), vx, vy, omega, far
+    return x1, y1, _lane_wrap(new_heading), vx, vy, omega, far
 
 
 @njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy")
