@@ -111,6 +111,21 @@ def test_a_table_is_stale_exactly_when_a_part_it_depends_on_or_its_command_moved
     assert "cannot be judged" in behaviour.why_stale(page, "alpha", ["kernel", "mpc"], command)
 
 
+def test_a_table_flown_on_another_machine_is_flown_again(tmp_path, fake_stamp, monkeypatch):
+    page = _page(tmp_path)
+    command = [str(_script(tmp_path, "print(1)\n")), "--runs", "3"]
+    here = behaviour.machine_identity()
+    line = behaviour.stamp_line(["kernel"], command)
+    assert f" machine={here} " in line
+    behaviour.write_stamp(page, "alpha", line)
+    assert behaviour.why_stale(page, "alpha", ["kernel"], command) is None
+    monkeypatch.setattr(behaviour, "machine_identity", lambda: "0" * 8)
+    assert f"flown on another machine ({here} -> 00000000)" in behaviour.why_stale(page, "alpha", ["kernel"], command)
+    # A stamp written before the machine was named is judged by its parts.
+    behaviour.write_stamp(page, "alpha", line.replace(f" machine={here}", ""))
+    assert behaviour.why_stale(page, "alpha", ["kernel"], command) is None
+
+
 def test_fly_skips_a_fresh_table_flies_a_stale_one_and_never_stamps_a_failure(tmp_path, fake_stamp, capsys):
     page = _page(tmp_path)
     marker = tmp_path / "flown"

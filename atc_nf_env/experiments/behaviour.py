@@ -26,7 +26,10 @@ the software, each flown with fixed seeds:
 
 Each part is 16 hex digits; the stamp of a table lists the parts it depends on. Equal
 parts mean the same numbers bit for bit on this machine; the stamp says nothing about
-speed (a table's timings are measured where it is written).
+speed (a table's timings are measured where it is written). Another processor can fly
+other bits from the same code (its libm, its vector width), so a table's stamp also names
+the machine it was flown on (``machine_identity``), and a table flown elsewhere is flown
+again rather than compared.
 
 A stamp is computed once per build fingerprint, probe code and model files, and kept in
 ``$ATC_NF_BEHAVIOUR_CACHE`` (default ``~/.cache/atc_nf_env/behaviour``): a table writer
@@ -266,6 +269,23 @@ PROBES: dict[str, Callable[[], str]] = {
 }
 
 
+def machine_identity() -> str:
+    """8 hex digits naming this machine as far as the bits of a flight go: the OS, the
+    architecture and the processor's model (``/proc/cpuinfo``'s first "model name", or
+    ``platform.processor()``); library versions are in the build fingerprint."""
+    import platform
+
+    model = platform.processor()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return hashlib.sha256(f"{platform.system()}|{platform.machine()}|{model}".encode()).hexdigest()[:8]
+
+
 def cache_key() -> str:
     """16 hex digits over what the stamp is a function of on one machine: the build
     fingerprint, this module's code and the shipped models' bytes."""
@@ -379,7 +399,7 @@ def stamp_line(parts: Iterable[str], argv: Sequence[str]) -> str:
     for ``parts`` (``BUILD`` among them: the build fingerprint) and the command ``argv``."""
     stamp = table_stamp(parts)
     return ("<!-- behaviour stamp: " + " ".join(f"{k}={v}" for k, v in stamp.items())
-            + f" command={command_identity(argv)} -->")
+            + f" machine={machine_identity()} command={command_identity(argv)} -->")
 
 
 def table_stamp(parts: Iterable[str], fresh: bool = False) -> dict[str, str]:
@@ -459,6 +479,10 @@ def why_stale(path: Path, section: str | None, parts: Iterable[str], argv: Seque
     stamp = read_stamp(text)
     if stamp is None:
         return f"{where}: flown before the behaviour stamp (no stamp line)"
+    here = machine_identity()
+    if stamp.get("machine", here) != here:  # a stamp without one predates the key: its parts decide
+        return (f"{where}: flown on another machine ({stamp['machine']} -> {here}), whose bits this one "
+                "need not reproduce")
     now = table_stamp(parts)
     unavailable = [part for part, value in now.items() if value == UNAVAILABLE]
     if unavailable:
