@@ -546,6 +546,26 @@ class _SearchResult:
     cluster_size: int
 
 
+@njit(cache=True)
+def log_acceptance(log_cost_from: float, log_cost_to: float, log_g_from: float, log_g_to: float,
+                   cost_exponent: float, sign: float) -> float:
+    """log ρ of the chain's move from one feasible state to another: the target ∝ C^−J
+    and the independence sampler's proposal ratio, J (log C_from − log C_to) +
+    sign · (log g_from − log g_to), with ``sign`` 1 for the standard acceptance and −1
+    for Table I's as printed. The one place of the formula: the exhaustive chain
+    (``metropolis_hastings_best``) and the lazy one (``_chain_until_undecided``, where a
+    cost's lower bound gives the largest ρ a candidate can reach) call it. IEEE
+    arithmetic, no fast-math, so Python and compiled callers take the same verdicts."""
+    return cost_exponent * (log_cost_from - log_cost_to) + sign * (log_g_from - log_g_to)
+
+
+@njit(cache=True)
+def accepts(log_rho: float, log_u: float) -> bool:
+    """Metropolis-Hastings' verdict: move when ρ ≥ 1, or when log u < log ρ for the
+    move's uniform draw u."""
+    return log_rho >= 0.0 or log_u < log_rho
+
+
 def metropolis_hastings_best(
     costs: np.ndarray,
     log_proposal: np.ndarray,
@@ -580,10 +600,9 @@ def metropolis_hastings_best(
         elif np.isinf(costs[current]):
             move = True
         else:
-            log_rho = cost_exponent * (log_cost[current] - log_cost[k]) + sign * (
-                log_proposal[current] - log_proposal[k]
-            )
-            move = log_rho >= 0.0 or math.log(max(uniforms[k], 1e-300)) < log_rho
+            log_rho = log_acceptance(log_cost[current], log_cost[k], log_proposal[current], log_proposal[k],
+                                     cost_exponent, sign)
+            move = bool(accepts(log_rho, math.log(max(uniforms[k], 1e-300))))
         if move:
             current = k
             accepted += 1
@@ -1527,17 +1546,17 @@ def _chain_until_undecided(
     while k < k_total:
         if done[k]:
             if not math.isinf(costs[k]):  # an infeasible candidate is rejected
-                log_rho = cost_exponent * (log_cost[current] - log_cost[k]) + sign * (log_g[current] - log_g[k])
-                if log_rho >= 0.0 or log_u[k] < log_rho:
+                if accepts(log_acceptance(log_cost[current], log_cost[k], log_g[current], log_g[k], cost_exponent,
+                                          sign), log_u[k]):
                     current = k
                     accepted += 1
                     if costs[current] < costs[best] or math.isinf(costs[best]):
                         best = current
             k += 1
             continue
-        upper = cost_exponent * (log_cost[current] - log_lower[k]) + sign * (log_g[current] - log_g[k])
-        if upper < 0.0 and log_u[k] >= upper:
-            k += 1  # rejected whatever its cost
+        if not accepts(log_acceptance(log_cost[current], log_lower[k], log_g[current], log_g[k], cost_exponent, sign),
+                       log_u[k]):
+            k += 1  # rejected whatever its cost: the lower bound gives the largest ρ
             continue
         return k, current, best, accepted
     return k, current, best, accepted
@@ -1567,22 +1586,22 @@ def _undecided_ahead(
     count = 1
     score = cost_exponent * log_cost[current] + sign * log_g[current]  # the state's
     rise = score - (cost_exponent * log_guess[k] + sign * log_g[k])
-    if rise >= 0.0 or log_u[k] < rise:
+    if accepts(rise, log_u[k]):
         score -= rise
     for j in range(k + 1, k_total):
         if done[j]:
             if not math.isinf(costs[j]):
                 rise = score - (cost_exponent * log_cost[j] + sign * log_g[j])
-                if rise >= 0.0 or log_u[j] < rise:
+                if accepts(rise, log_u[j]):
                     score -= rise
             continue
         upper = score - (cost_exponent * log_lower[j] + sign * log_g[j])
-        if upper < 0.0 and log_u[j] >= upper:
+        if not accepts(upper, log_u[j]):
             continue
         rows[count] = j
         count += 1
         rise = score - (cost_exponent * log_guess[j] + sign * log_g[j])
-        if rise >= 0.0 or log_u[j] < rise:
+        if accepts(rise, log_u[j]):
             score -= rise
     return rows[:count]
 
