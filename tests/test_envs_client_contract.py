@@ -14,7 +14,7 @@ from pettingzoo.test import max_cycles_test
 
 import atc_nf_env
 from atc_nf_env.envs.centralized import EncounterEnv
-from atc_nf_env.envs.rewards import RewardWeights, period_outcome, reward_weight_vector, step_outcome
+from atc_nf_env.envs.rewards import RewardWeights, period_outcome, reward_weight_vector
 from atc_nf_env.envs.vector import EncounterVectorEnv
 from atc_nf_env.kernel import Trace
 
@@ -174,7 +174,7 @@ def test_aec_episode_ends_cleanly_when_an_arrival_meets_the_time_limit() -> None
     assert 1 <= sum(terminated for terminated, _ in ended.values()) < 4
 
 
-def test_compiled_period_outcome_equals_the_numpy_one_bit_for_bit() -> None:
+def test_the_period_outcome_is_the_reward_of_the_rewards_docstring() -> None:
     rng = np.random.default_rng(7)
     b, n = 64, 5
     weights = RewardWeights(progress_per_100nm=1.3, envelope_violation=0.7, loss_of_separation=5.0,
@@ -194,14 +194,24 @@ def test_compiled_period_outcome_equals_the_numpy_one_bit_for_bit() -> None:
         min_separation_nm=np.zeros(b), steps_done=np.zeros(b, dtype=np.int64), violated=np.zeros(b, dtype=bool),
         record=np.zeros((b, 0, n, 1)),
     )
+    # The formula of rewards' docstring, written out over the arrays: the oracle.
     after = np.hypot(state[:, :, S_DEST_X] - state[:, :, S_X], state[:, :, S_DEST_Y] - state[:, :, S_Y])
-    want = step_outcome(flying_before, distance_before, after, state[:, :, S_STATUS] == ARRIVED,
-                        state[:, :, S_STATUS] == LEFT, trace, weights)
+    fraction = trace.violation_steps / np.maximum(trace.steps_flown, 1)
+    los_count = trace.los_pairs.sum(axis=-1, dtype=np.int64)
+    arrived_now = flying_before & (state[:, :, S_STATUS] == ARRIVED)
+    left_now = flying_before & (state[:, :, S_STATUS] == LEFT)
+    progress = (distance_before - after) * flying_before
+    want = {
+        "rewards": (weights.progress_per_100nm / 100.0) * progress - weights.envelope_violation * fraction
+        - weights.loss_of_separation * los_count + weights.arrival_bonus * arrived_now
+        - weights.left_workspace_penalty * left_now,
+        "arrived_now": arrived_now, "left_now": left_now, "violation_fraction": fraction, "los_count": los_count,
+        "progress_nm": progress, "distance_to_go_nm": after,
+    }
     got = period_outcome(state, flying_before, distance_before, trace, reward_weight_vector(weights))
-    for field in ("rewards", "arrived_now", "left_now", "violation_fraction", "los_count", "progress_nm",
-                  "distance_to_go_nm"):
-        assert np.array_equal(getattr(got, field), getattr(want, field)), field
-        assert getattr(got, field).dtype == getattr(want, field).dtype, field
+    for field, value in want.items():
+        assert np.array_equal(getattr(got, field), value), field
+        assert getattr(got, field).dtype == value.dtype, field
 
 
 def test_fast_paths_still_refuse_complex_and_non_numeric_actions() -> None:

@@ -16,7 +16,7 @@ from atc_nf_env import kernel
 from atc_nf_env.envs import EnvConfig, ScenarioSource, draw_episode_seed, episode_wind
 from atc_nf_env.envs.actions import WORKSPACE_MARGIN_NM, _waypoints_from_state, nonfinite_actions
 from atc_nf_env.envs.observations import ObservationSpec, _observe
-from atc_nf_env.envs.rewards import reward_weight_vector
+from atc_nf_env.envs.rewards import aircraft_reward, reward_weight_vector
 from atc_nf_env.kernel import (
     ARRIVED,
     FLYING,
@@ -110,8 +110,7 @@ def _world_after_period(
     flying_after: np.ndarray,
 ) -> None:
     """Everything a single-world env reports after ``kernel.advance`` flew one period, in
-    one call: the rewards and per-aircraft infos (the same arithmetic as
-    ``rewards.step_outcome``, bit for bit), the observations and nearest distances.
+    one call: the rewards (``rewards.aircraft_reward``) and per-aircraft infos, the observations and nearest distances.
     state (1, n, N_STATE); the trace's arrays as ``advance`` returned them (1, n) and
     (1, n, n); actions and per-aircraft arrays (n,); obs (1, n_slots, D); nearest
     (1, n_slots)."""
@@ -146,13 +145,7 @@ def _world_after_period(
         )
         record["arrived"] = arrived
         record["left_workspace"] = left
-        record["aircraft_reward"] = (
-            weights[0] * gain
-            - weights[1] * share
-            - weights[2] * count
-            + weights[3] * (1.0 if flew and arrived else 0.0)
-            - weights[4] * (1.0 if flew and left else 0.0)
-        )
+        record["aircraft_reward"] = aircraft_reward(weights, gain, share, count, flew and arrived, flew and left)
 
 
 @njit(cache=True, error_model="numpy")

@@ -99,50 +99,25 @@ class StepOutcome:
     distance_to_go_nm: np.ndarray
 
 
-def step_outcome(
-    flying_before: np.ndarray,
-    distance_before_nm: np.ndarray,
-    distance_after_nm: np.ndarray,
-    arrived_after: np.ndarray,
-    left_after: np.ndarray,
-    trace: Trace,
-    weights: RewardWeights,
-    n_aircraft: int | None = None,
-) -> StepOutcome:
-    """Rewards and per-aircraft outcome of one period from the kernel's trace.
+@njit(cache=True, error_model="numpy")
+def aircraft_reward(weights: np.ndarray, progress_nm: float, violation_fraction: float, los_count: int,
+                    arrived_now: bool, left_now: bool) -> float:
+    """r_i of the module docstring: the one place of the formula, which the envs' compiled
+    outcomes (``period_outcome``, the centralized env's period) call.
 
     Args:
-        flying_before: (B, N) bool, flying at the start of the period.
-        distance_before_nm, distance_after_nm: (B, N) distance to go, nm.
-        arrived_after, left_after: (B, N) bool status at the end.
-        trace: the kernel's trace of the period (its first N aircraft are used).
-        weights: the reward weights.
-        n_aircraft: N (default: flying_before.shape[1]).
+        weights: ``reward_weight_vector(weights)``.
+        progress_nm: d_i(t) − d_i(t + T), 0 for an aircraft that did not fly, nm.
+        violation_fraction: steps outside the envelope / steps flown.
+        los_count: other aircraft closer than the separation minimum at some step.
+        arrived_now, left_now: it flew and arrived / left during the period.
     """
-    n = flying_before.shape[1] if n_aircraft is None else n_aircraft
-    # Every term is 0 for an aircraft that did not fly: it flew no step, lost no
-    # separation, and its progress and arrival are masked.
-    fraction = trace.violation_steps[:, :n] / np.maximum(trace.steps_flown[:, :n], 1)
-    los_count = trace.los_pairs[:, :n, :n].sum(axis=-1, dtype=np.int64)
-    arrived_now = flying_before & arrived_after
-    left_now = flying_before & left_after
-    progress = (distance_before_nm - distance_after_nm) * flying_before
-    rewards = (
-        (weights.progress_per_100nm / 100.0) * progress
-        - weights.envelope_violation * fraction
-        - weights.loss_of_separation * los_count
-        + weights.arrival_bonus * arrived_now
-        - weights.left_workspace_penalty * left_now
-    )
-    return StepOutcome(
-        rewards=rewards,
-        flew=flying_before,
-        arrived_now=arrived_now,
-        left_now=left_now,
-        violation_fraction=fraction,
-        los_count=los_count,
-        progress_nm=progress,
-        distance_to_go_nm=distance_after_nm,
+    return (
+        weights[0] * progress_nm
+        - weights[1] * violation_fraction
+        - weights[2] * los_count
+        + weights[3] * (1.0 if arrived_now else 0.0)
+        - weights[4] * (1.0 if left_now else 0.0)
     )
 
 
@@ -163,8 +138,6 @@ def _period_outcome(
     progress: np.ndarray,
     distance_after: np.ndarray,
 ) -> None:
-    # The same operations in the same order as ``step_outcome``, so the results are
-    # bit for bit equal (no fastmath).
     n_worlds, n = flying_before.shape
     for b in range(n_worlds):
         for i in range(n):
@@ -184,13 +157,7 @@ def _period_outcome(
             los_count[b, i] = count
             gain = (distance_before[b, i] - after) * (1.0 if flew else 0.0)
             progress[b, i] = gain
-            rewards[b, i] = (
-                weights[0] * gain
-                - weights[1] * share
-                - weights[2] * count
-                + weights[3] * (1.0 if arrived else 0.0)
-                - weights[4] * (1.0 if left else 0.0)
-            )
+            rewards[b, i] = aircraft_reward(weights, gain, share, count, arrived, left)
 
 
 def period_outcome(
@@ -200,7 +167,8 @@ def period_outcome(
     trace: Trace,
     weights: np.ndarray,
 ) -> StepOutcome:
-    """``step_outcome`` compiled (bit for bit equal), for B worlds of N aircraft.
+    """Rewards and per-aircraft outcome of one period of B worlds of N aircraft, from the
+    kernel's state after it and its trace.
 
     Args:
         state_after: (B, N', N_STATE) kernel state at the end of the period, N' >= N.
@@ -253,4 +221,4 @@ def reward_weight_vector(weights: RewardWeights) -> np.ndarray:
     )
 
 
-__all__ = ["RewardWeights", "StepOutcome", "period_outcome", "reward_weight_vector", "step_outcome"]
+__all__ = ["RewardWeights", "StepOutcome", "aircraft_reward", "period_outcome", "reward_weight_vector"]

@@ -37,7 +37,7 @@ from atc_nf_env.scenarios import check_seed
 from atc_nf_env.envs.actions import waypoints_for_state
 from atc_nf_env.envs.centralized import validate_step_actions
 from atc_nf_env.envs.observations import ObservationSpec
-from atc_nf_env.envs.rewards import StepOutcome, step_outcome
+from atc_nf_env.envs.rewards import StepOutcome, period_outcome, reward_weight_vector
 from atc_nf_env.kernel import (
     ARRIVED,
     FLYING,
@@ -67,6 +67,7 @@ class BatchWorlds:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"{where}: num_envs = {num_envs!r}: must be an integer >= 1")
         self.cfg = cfg
+        self._reward_weights = reward_weight_vector(cfg.reward_weights)
         self.num_envs = int(num_envs)
         self.source = ScenarioSource(cfg.scenario)
         self.n_slots = self.source.slots(cfg.max_aircraft, where)
@@ -175,12 +176,7 @@ class BatchWorlds:
             self.decisions[index] += 1
         self.last_waypoints = waypoints
         self._refresh()
-        distance_after = np.hypot(state[:, :, S_DEST_X] - state[:, :, S_X], state[:, :, S_DEST_Y] - state[:, :, S_Y])
-        status = state[:, :, S_STATUS]
-        outcome = step_outcome(
-            flying_before, distance_before, distance_after, status == ARRIVED, status == LEFT, trace,
-            self.cfg.reward_weights,
-        )
+        outcome = period_outcome(state, flying_before, distance_before, trace, self._reward_weights)
         return outcome, trace
 
     def info_arrays(self, outcome: StepOutcome | None, trace: Trace | None, clipped: np.ndarray | None) -> dict[str, Any]:
