@@ -379,7 +379,7 @@ def train_imitation(task: str, seed: int, budget: Budget, folder: Path) -> dict[
     bc_losses = _epoch_losses(bc)
     out = {"bc": {"model": str(bc_model), "frames": bc["dataset"]["samples"],
                   "frames_unit": "MPC-labelled aircraft-decisions", "episodes": bc["dataset"]["episodes"],
-                  "wall_s": round(bc_wall, 1), "command": command,
+                  "wall_s": round(bc_wall, 3), "command": command,
                   "curve": {"x": list(range(1, len(bc_losses) + 1)), "y": bc_losses} if bc_losses else None,
                   "curve_axes": ["epoch", "validation loss (Gaussian NLL of the MPC's action)"]}}
     last = f"dagger-{budget.dagger_iterations}"
@@ -421,7 +421,7 @@ def train_torchrl(algorithm: str, task: str, seed: int, budget: Budget, folder: 
     done_periods = int(meta.get("frames", periods))
     curve = torchrl_curve(folder / "run" / "curve.csv", meta, n_aircraft)
     return {algorithm: {"model": str(model), "frames": done_periods * n_aircraft, "frames_unit": "frames",
-                        "wall_s": round(float(meta.get("wall_s", wall)), 1),
+                        "wall_s": round(float(meta.get("wall_s", wall)), 3),
                         "command": f"{TORCHRL_MODULE}.train({algorithm!r}, {task!r}, {seed}, {periods}, "
                                    f"{str(folder / 'run')!r})",
                         "curve": curve, "curve_axes": ["frames", "mean return per aircraft (training)"]}}
@@ -544,7 +544,7 @@ def run_unit(unit: Unit, budget: Budget, out: Path, build: str) -> dict[str, Any
     start = time.perf_counter()
     models = TRAINERS[unit.trainer](unit.task, unit.seed, budget, folder)
     done = {"build": build, "trainer": unit.trainer, "task": unit.task, "seed": unit.seed, "models": models,
-            "unit_wall_s": round(time.perf_counter() - start, 1)}
+            "unit_wall_s": round(time.perf_counter() - start, 3)}
     _write_json(done_path, done)
     return done
 

@@ -439,12 +439,12 @@ def train(args: Args, command: str | None = None) -> dict[str, Any]:
     model.learn(total_timesteps=args.total_timesteps, callback=make_callbacks(args, meta),
                 tb_log_name=f"{args.algo}_{args.mode}", progress_bar=False)
     wall = time.perf_counter() - start
-    meta["training"]["wall_s"] = round(wall, 1)
+    meta["training"]["wall_s"] = round(wall, 3)
     meta["training"]["timesteps_done"] = int(model.num_timesteps)
     path = save_model(model, args.out / "model.zip", meta)
     venv.close()
 
-    record = {"config": config_dict(args), "command": command, "wall_s": round(wall, 1), "model": str(path),
+    record = {"config": config_dict(args), "command": command, "wall_s": round(wall, 3), "model": str(path),
               "timesteps": int(model.num_timesteps)}
     if args.eval_runs:
         record["evaluation"] = evaluate_model(path, args.scenario, args.eval_runs, args.wind_sigma)
