@@ -86,7 +86,7 @@ def test_an_edit_of_a_callees_module_alone_recompiles_its_callers(tmp_path: Path
 
 
 #: The modules of the project that cache compiled functions on disk.
-CACHING_MODULES = ("atc_nf_env.kernel", "atc_nf_env.nf", "atc_nf_env.trig", "atc_nf_env.neighbour_grid",
+CACHING_MODULES = ("atc_nf_env.kernel", "atc_nf_env.law", "atc_nf_env.nf", "atc_nf_env.trig", "atc_nf_env.neighbour_grid",
                    "atc_nf_env.shield_prediction", "atc_nf_env.envs.actions", "atc_nf_env.envs.centralized",
                    "atc_nf_env.envs.observations", "atc_nf_env.envs.rewards", "baselines.mcmc_mpc",
                    "agents.compiled_forward")
