@@ -43,9 +43,9 @@ and θ_nh the angle of sgn(p_i) ∇_iΦ_i. The wind w enters the ground velocity
 constrains airspeed, and the NF never sees the wind.
 
 Each formula of the law and of the step is written once, in ``atc_nf_env.law``
-(``feedback``, ``airspeed``, ``turn_rate``, the right-hand rule's ``right_turn_weight``
-and ``right_turn_blend``, ``integrate``); the general path and the lane paths below call
-those functions, so an edit there changes every path (``tests/test_law_once.py``). The NF
+(``feedback``, ``airspeed`` and its cap ``saturate``, ``turn_rate``, the right-hand
+rule's ``right_turn_weight`` and ``right_turn_blend``, ``integrate``); the general path
+and the lane paths below call those functions, so an edit there changes every path (``tests/test_law_once.py``). The NF
 itself is ``atc_nf_env.nf``.
 
 Guards against the law's singularities and the step's error (each keeps a value finite
@@ -474,8 +474,7 @@ def _commands(
                                                 _wrap(theta_nh - state[i, S_THETA_NH]), state[i, S_FRESH],
                                                 state[i, S_LAST_SUBSTEPS], inv_dt, k_theta)
             # F_i itself can exceed the cap (a waypoint far away), so the blend can too.
-            # With no ∂Φ_i/∂t term left, ``law.airspeed`` only saturates (guard 2).
-            u, _ = law.airspeed(law.right_turn_blend(u, w, command[i, C_U_FEEDBACK]), 0.0, 1.0, u_cap)
+            u, _ = law.saturate(law.right_turn_blend(u, w, command[i, C_U_FEEDBACK]), u_cap)
         if not u_min <= u <= u_max:
             outside = True
         command[i, C_U] = u
@@ -673,7 +672,7 @@ def _ordinary_run(
             ex = x1 - lanes[A_DEST_X, k]
             ey = y1 - lanes[A_DEST_Y, k]
             reach = delta + step_nm
-            unusual |= (not ((-u_cap < u) & (u < u_cap))) | far | (ex * ex + ey * ey <= reach * reach) | (
+            unusual |= law.saturate(u, u_cap)[1] | far | (ex * ex + ey * ey <= reach * reach) | (
                 x1 * x1 + y1 * y1 >= exit_radius * exit_radius)
             lanes[A_X1, k] = x1
             lanes[A_Y1, k] = y1
@@ -1377,7 +1376,7 @@ def _lane_step(count: int, lanes: np.ndarray, temp: np.ndarray, world: np.ndarra
                 temp[T_GX, i, b], temp[T_GY, i, b], c, sn, (x0 - wp_x[b]) * inv_len, (y0 - wp_y[b]) * inv_len,
                 temp[T_THETA, i, b], lanes[S_THETA_D, i, b], params,
             )
-            saturated = not ((-u_cap < u) & (u < u_cap))
+            _, saturated = law.saturate(u, u_cap)
             x1, y1, heading1, vx, vy, omega, far = _lane_move(
                 u, c, sn, world[W_WIND_X, b], world[W_WIND_Y, b], x0, y0, lanes[S_HEADING, i, b], theta_nh, lanes[S_THETA_NH, i, b],
                 lanes[S_FRESH, i, b], lanes[S_LAST_SUBSTEPS, i, b], lanes[S_VX_PREV, i, b], lanes[S_VY_PREV, i, b],

@@ -89,6 +89,13 @@ def airspeed(u_feedback: float, dphi_dt: float, p_floored: float, u_cap: float) 
     makes exactly 0 where ∂Φ_i/∂t ≤ 0 (so nothing is subtracted), saturated at ± ``u_cap``
     (guard 2). Returns (u_i, whether it saturated)."""
     u = u_feedback - (dphi_dt + abs(dphi_dt)) / (2.0 * p_floored) if dphi_dt > 0.0 else u_feedback
+    return saturate(u, u_cap)
+
+
+@njit(cache=True, fastmath=FAST_MATH_FLAGS, error_model="numpy", **NO_REFERENCE_COUNTS)
+def saturate(u: float, u_cap: float) -> tuple[float, bool]:
+    """An airspeed command saturated at ± ``u_cap`` (guard 2), kt, and whether it reached
+    the cap (a step with such a command is flown in sub-steps: guard 8)."""
     return min(max(u, -u_cap), u_cap), not ((-u_cap < u) & (u < u_cap))
 
 

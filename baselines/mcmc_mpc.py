@@ -602,7 +602,7 @@ def metropolis_hastings_best(
         else:
             log_rho = log_acceptance(log_cost[current], log_cost[k], log_proposal[current], log_proposal[k],
                                      cost_exponent, sign)
-            move = bool(accepts(log_rho, math.log(max(uniforms[k], 1e-300))))
+            move = accepts(log_rho, math.log(max(uniforms[k], 1e-300)))
         if move:
             current = k
             accepted += 1
